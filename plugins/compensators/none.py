@@ -1,0 +1,20 @@
+"""``none`` compensator: fit the record as measured."""
+from __future__ import annotations
+
+from mbus_framework.backend import Measurement
+from mbus_framework.compensator import Compensator
+from mbus_framework.hookspecs import CompensatorSpec, hookimpl
+
+
+class NoCompensation(Compensator):
+    """Leaves the measurement unchanged."""
+
+    summary = "no transducer compensation"
+
+    def apply(self, measurement: Measurement) -> Measurement:
+        return measurement
+
+
+@hookimpl
+def mbus_compensators():
+    return [CompensatorSpec("none", NoCompensation, NoCompensation.summary)]
