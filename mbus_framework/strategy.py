@@ -1,0 +1,242 @@
+"""Global estimation strategy for output-error fits of lightly damped chains.
+
+The output-error cost of a wave-propagation model is multimodal: a model whose wave arrives
+a few periods early or late matches the data at a wrong phase (cycle skipping). The strategy
+removes that ambiguity before any local fit, for any medium model:
+
+1. **Physics-based start.** The user's initial values, or the model's own
+   ``initial_guess`` (for the chains: first arrival -> sound speed -> stiffness, Sec. 3.5.1).
+2. **Time-scale alignment.** Every parameter declares a ``time_exponent`` e (stiffness 2,
+   damping 1, relaxation time -1). Scaling theta_i by c**e_i makes all the model's dynamics
+   run c times faster, i.e. moves its arrival time by 1/c without changing its shape. A 1-D
+   grid over c (with the best amplitude factor per point) puts the model's arrival on the
+   measured one.
+3. **Band continuation.** Each local fit first matches a low-passed residual (cut-off a
+   fraction of the record's signal bandwidth, where the cost has few local minima), then
+   widens the band to the full record.
+4. **Budgeted multi-start.** Further starts spread log-uniformly (Sobol) around the aligned
+   start, each aligned and band-continued; the search stops once ``confirm`` starts reach
+   the same best minimum, or the budget is spent. The best is refined on the full record.
+
+Everything tried is reported (``SearchReport``), so result.json says what won.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy import fft as sfft
+from scipy.stats import qmc
+
+from .solver import FitProblem, Progress
+
+
+class StrategyOptions(BaseModel):
+    """Options of the global strategy (the ``solver.options.strategy`` config section)."""
+
+    model_config = ConfigDict(extra="forbid")
+    time_scale: bool = Field(True, description="align the arrival time by a 1-D time-scale search")
+    time_scale_range: float = Field(4.0, gt=1, description="search time scales c in [1/r, r]")
+    time_scale_points: int = Field(41, ge=3, description="grid points of the time-scale search")
+    bands: list[float] = Field(
+        default_factory=lambda: [0.15, 0.3, 0.6],
+        description="low-pass cut-offs of the continuation, as fractions of the signal bandwidth; "
+        "the full band always follows",
+    )
+    n_starts: int = Field(8, ge=1, description="maximum number of starts (the first is the physics/user start)")
+    spread: float = Field(4.0, ge=1, description="extra starts are drawn log-uniformly within x/÷ spread")
+    confirm: int = Field(2, ge=1, description="stop when this many starts reach the best minimum")
+    stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each continuation stage")
+    seed: int = Field(0, description="seed of the multi-start design")
+
+
+@dataclass
+class LocalResult:
+    """Outcome of one local least-squares solve (log-parameter space)."""
+
+    theta: np.ndarray
+    cost: float
+    nfev: int
+    njev: int
+    status: int
+    message: str
+    iterations: int
+    trace: list[dict] = field(default_factory=list)
+
+
+#: A local solver: (problem, start, band filter or None, max_nfev, final) -> LocalResult
+LocalFit = Callable[[FitProblem, np.ndarray, "BandFilter | None", int, bool], LocalResult]
+
+
+@dataclass
+class SearchReport:
+    """What the strategy tried and what won (written to result.json ``strategy``)."""
+
+    initial_source: str
+    initial: dict[str, float]
+    aligned: dict[str, float] | None = None
+    time_scale: float | None = None
+    signal_bandwidth_hz: float | None = None
+    bands_hz: list[float] = field(default_factory=list)
+    starts: list[dict] = field(default_factory=list)
+    winner: int | None = None
+    confirmed_by: int = 0
+    wall_time_s: float = 0.0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+class BandFilter:
+    """Zero-phase low-pass |H(f)| = 1 / sqrt(1 + (f/fc)^8) applied along axis 0 by FFT.
+
+    The record is zero-padded to twice its length, so the filter is a linear convolution
+    (no wrap-around). Being linear, it applies to residuals and Jacobians alike.
+    """
+
+    def __init__(self, cutoff_hz: float, n: int, dt: float):
+        self.cutoff_hz = float(cutoff_hz)
+        self.n = n
+        self.nfft = sfft.next_fast_len(2 * n, real=True)
+        f = sfft.rfftfreq(self.nfft, dt)
+        self.gain = 1.0 / np.sqrt(1.0 + (f / cutoff_hz) ** 8)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        X = sfft.rfft(x, self.nfft, axis=0)
+        g = self.gain if x.ndim == 1 else self.gain[:, None]
+        return sfft.irfft(X * g, self.nfft, axis=0)[: self.n]
+
+
+def signal_bandwidth(y: np.ndarray, dt: float, fraction: float = 0.99) -> float:
+    """Frequency [Hz] below which ``fraction`` of the record's power lies."""
+    Y = np.abs(np.fft.rfft(y - np.mean(y))) ** 2
+    f = np.fft.rfftfreq(len(y), dt)
+    cum = np.cumsum(Y)
+    if cum[-1] <= 0:
+        return float(f[-1])
+    return float(f[min(np.searchsorted(cum, fraction * cum[-1]), len(f) - 1)])
+
+
+def time_exponents(problem: FitProblem) -> np.ndarray:
+    return np.array([p.time_exponent for p in problem.model.parameters], dtype=float)
+
+
+def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int | None = None):
+    """Best time scale c for ``theta`` (free parameters scaled by c**e); returns (theta_c, c, nfev).
+
+    Each grid point is scored by the residual after the best amplitude factor a:
+    min_a ||a yhat - y||^2 = ||y||^2 - (yhat.y)^2 / ||yhat||^2.
+    """
+    e = time_exponents(problem) * problem.free
+    if not np.any(e):
+        return theta, 1.0, 0
+    points = points or options.time_scale_points
+    r = options.time_scale_range
+    scales = np.exp(np.linspace(-np.log(r), np.log(r), points))
+    y = problem.y
+    best, best_c, nfev = -np.inf, 1.0, 0
+    lo, hi = problem.lower, problem.upper
+    for c in scales:
+        th = theta * c**e
+        if np.any(th < lo) or np.any(th > hi):
+            continue
+        yhat = problem.predict(th)
+        nfev += 1
+        denom = float(yhat @ yhat)
+        if not np.isfinite(denom) or denom <= 0:
+            continue
+        score = float(yhat @ y) ** 2 / denom  # explained energy; maximise
+        if score > best:
+            best, best_c = score, float(c)
+    return theta * best_c**e, best_c, nfev
+
+
+def search(
+    problem: FitProblem,
+    local_fit: LocalFit,
+    options: StrategyOptions,
+    progress: Progress | None = None,
+) -> tuple[LocalResult, SearchReport, int, int]:
+    """Run the strategy; returns (best refined result, report, total nfev, total njev)."""
+    t0 = time.perf_counter()
+    names = problem.names
+    if problem.initial is not None:
+        theta0, source = problem.full(np.asarray(problem.initial, float)[problem.free], problem.initial), "config"
+    else:
+        guess = problem.model.initial_guess(problem.t, problem.u, problem.y)
+        theta0, source = problem.full(np.asarray(guess, float)[problem.free], guess), "model.initial_guess"
+    theta0 = np.clip(theta0, problem.lower, problem.upper)
+    report = SearchReport(source, dict(zip(names, map(float, theta0))))
+
+    f_sig = signal_bandwidth(problem.y, problem.dt)
+    report.signal_bandwidth_hz = f_sig
+    filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
+    report.bands_hz = [bf.cutoff_hz for bf in filters]
+
+    nfev = njev = 0
+    anchor = theta0
+    if options.time_scale:
+        anchor, c, n = align_time_scale(problem, theta0, options)
+        nfev += n
+        report.aligned, report.time_scale = dict(zip(names, map(float, anchor))), c
+
+    starts = [anchor]
+    if options.n_starts > 1:
+        free = problem.free
+        sampler = qmc.Sobol(d=int(free.sum()), scramble=True, seed=options.seed)
+        design = sampler.random(int(2 ** np.ceil(np.log2(max(options.n_starts - 1, 1)))))[: options.n_starts - 1]
+        for row in design:
+            th = anchor.copy()
+            th[free] = anchor[free] * np.exp((2 * row - 1) * np.log(options.spread))
+            starts.append(np.clip(th, problem.lower, problem.upper))
+
+    if progress:
+        progress.start("global search (starts)", total=len(starts))
+    best: LocalResult | None = None
+    confirmations = 0
+    for k, start in enumerate(starts):
+        entry = {"index": k, "start": dict(zip(names, map(float, start)))}
+        if k > 0 and options.time_scale:
+            start, c, n = align_time_scale(problem, start, options, points=max(11, options.time_scale_points // 2))
+            nfev += n
+            entry["time_scale"] = c
+        res = None
+        theta = start
+        for bf in filters:
+            res = local_fit(problem, theta, bf, options.stage_max_nfev, False)
+            nfev, njev, theta = nfev + res.nfev, njev + res.njev, res.theta
+        res = local_fit(problem, theta, None, 2 * options.stage_max_nfev, False)
+        nfev, njev = nfev + res.nfev, njev + res.njev
+        entry.update(end=dict(zip(names, map(float, res.theta))), cost=res.cost)
+        report.starts.append(entry)
+        if best is None or res.cost < best.cost * (1 - 1e-9):
+            same = best is not None and _same_minimum(best, res)
+            best, report.winner = res, k
+            confirmations = 2 if same else 1
+        elif _same_minimum(best, res):
+            confirmations += 1
+        if progress:
+            progress.advance(1, f"best cost {best.cost:.4g}")
+        if confirmations >= options.confirm:
+            break
+    report.confirmed_by = confirmations
+    if progress:
+        progress.stop()
+
+    final = local_fit(problem, best.theta, None, 50 * options.stage_max_nfev, True)
+    nfev, njev = nfev + final.nfev, njev + final.njev
+    if final.cost > best.cost:  # refinement never makes things worse
+        final = best
+    report.wall_time_s = time.perf_counter() - t0
+    return final, report, nfev, njev
+
+
+def _same_minimum(a: LocalResult, b: LocalResult, rtol: float = 1e-3) -> bool:
+    """Two local results are the same minimum when costs and parameters agree to ``rtol``."""
+    if not (np.isfinite(a.cost) and np.isfinite(b.cost)):
+        return False
+    cost_ok = abs(a.cost - b.cost) <= rtol * max(a.cost, b.cost, 1e-300)
+    return bool(cost_ok and np.allclose(a.theta, b.theta, rtol=10 * rtol, atol=0))
