@@ -62,7 +62,7 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     if strat.get("starts"):
         lines.append(
             f"  strategy: start from {strat.get('initial_source')}, {len(strat['starts'])} start(s) tried, "
-            f"start {strat.get('winner')} won (reached by {strat.get('confirmed_by')})"
+            f"start {strat.get('winner')} won; accepted: {strat.get('accepted_because', '')}"
         )
     if run_dir is not None:
         lines.append(f"  output: {run_dir}")

@@ -51,6 +51,16 @@ class StrategyOptions(BaseModel):
     confirm: int = Field(2, ge=1, description="stop when this many starts reach the best minimum")
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each continuation stage")
     seed: int = Field(0, description="seed of the multi-start design")
+    accept_white: bool = Field(
+        True,
+        description="accept a minimum at once when its residuals are white (no structure left to fit)",
+    )
+    whiteness_threshold: float = Field(
+        0.1, gt=0, description="largest mean |autocorrelation| of residuals at lags 1-10 counted as white"
+    )
+    coordinate_scan: int = Field(
+        1, ge=0, description="sweeps of a per-parameter log-grid scan after alignment (0 = off)"
+    )
 
 
 @dataclass
@@ -84,6 +94,7 @@ class SearchReport:
     starts: list[dict] = field(default_factory=list)
     winner: int | None = None
     confirmed_by: int = 0
+    accepted_because: str = ""
     wall_time_s: float = 0.0
 
     def as_dict(self) -> dict:
@@ -143,7 +154,8 @@ def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOp
         th = theta * c**e
         if np.any(th < lo) or np.any(th > hi):
             continue
-        yhat = problem.predict(th)
+        with np.errstate(over="ignore", invalid="ignore"):
+            yhat = problem.predict(th)
         nfev += 1
         denom = float(yhat @ yhat)
         if not np.isfinite(denom) or denom <= 0:
@@ -152,6 +164,36 @@ def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOp
         if score > best:
             best, best_c = score, float(c)
     return theta * best_c**e, best_c, nfev
+
+
+def _explained_energy(problem: FitProblem, theta: np.ndarray) -> float:
+    """(yhat . y)^2 / ||yhat||^2: the data energy a scaled model output explains."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        yhat = problem.predict(theta)
+    denom = float(yhat @ yhat)
+    if not np.isfinite(denom) or denom <= 0:
+        return -np.inf
+    return float(yhat @ problem.y) ** 2 / denom
+
+
+def coordinate_scan(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int = 17):
+    """Per-parameter log-grid scan (x/÷ spread) keeping each best point; returns (theta, nfev)."""
+    theta = theta.copy()
+    nfev = 0
+    factors = np.exp(np.linspace(-np.log(options.spread), np.log(options.spread), points))
+    best = _explained_energy(problem, theta)
+    for _ in range(options.coordinate_scan):
+        for i in np.flatnonzero(problem.free):
+            for f in factors:
+                trial = theta.copy()
+                trial[i] = theta[i] * f
+                if not (problem.lower[i] <= trial[i] <= problem.upper[i]):
+                    continue
+                score = _explained_energy(problem, trial)
+                nfev += 1
+                if score > best:
+                    best, theta = score, trial
+    return theta, nfev
 
 
 def search(
@@ -203,6 +245,10 @@ def search(
             start, c, n = align_time_scale(problem, start, options, points=max(11, options.time_scale_points // 2))
             nfev += n
             entry["time_scale"] = c
+        if options.coordinate_scan:
+            start, n = coordinate_scan(problem, start, options)
+            nfev += n
+            entry["scanned"] = dict(zip(names, map(float, start)))
         res = None
         theta = start
         for bf in filters:
@@ -218,10 +264,17 @@ def search(
             confirmations = 2 if same else 1
         elif _same_minimum(best, res):
             confirmations += 1
+        entry["residual_autocorrelation"] = res_white = residual_whiteness(problem, res.theta)
         if progress:
             progress.advance(1, f"best cost {best.cost:.4g}")
         if confirmations >= options.confirm:
+            report.accepted_because = f"{confirmations} starts reached the same minimum"
             break
+        if options.accept_white and best is res and res_white < options.whiteness_threshold:
+            report.accepted_because = f"white residuals (mean |autocorrelation| {res_white:.3g})"
+            break
+    else:
+        report.accepted_because = f"best of {len(starts)} starts (budget spent)"
     report.confirmed_by = confirmations
     if progress:
         progress.stop()
@@ -232,6 +285,23 @@ def search(
         final = best
     report.wall_time_s = time.perf_counter() - t0
     return final, report, nfev, njev
+
+
+def residual_whiteness(problem: FitProblem, theta: np.ndarray, lags: int = 10) -> float:
+    """Mean |normalised autocorrelation| of the residual y - yhat at lags 1..``lags``.
+
+    About 0.8/sqrt(N) for white noise; near 1 when a structured misfit is left (a local
+    minimum of a wave model leaves a delayed or mistuned copy of the signal).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = problem.y - problem.predict(theta)
+    if not np.all(np.isfinite(r)):
+        return np.inf
+    r = r - r.mean()
+    denom = float(r @ r)
+    if denom <= 0:
+        return 0.0
+    return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 
 
 def _same_minimum(a: LocalResult, b: LocalResult, rtol: float = 1e-3) -> bool:

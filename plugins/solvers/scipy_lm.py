@@ -78,7 +78,8 @@ class ScipyLM(Solver):
             return problem.full(np.exp(np.clip(phi, lo_phi, hi_phi)), theta0)
 
         def residual(phi):
-            yhat = problem.predict(theta_of(phi))
+            with np.errstate(over="ignore", invalid="ignore"):
+                yhat = problem.predict(theta_of(phi))
             r = (band(yhat) if band else yhat) - y
             if not np.all(np.isfinite(r)):
                 return np.full_like(y, 1e6 * scale)
@@ -86,7 +87,8 @@ class ScipyLM(Solver):
 
         def jacobian(phi):
             theta = theta_of(phi)
-            yhat, J = problem.predict_with_jacobian(theta)
+            with np.errstate(over="ignore", invalid="ignore"):
+                yhat, J = problem.predict_with_jacobian(theta)
             Jphi = J[:, free] * theta[free]
             if band:
                 yhat, Jphi = band(yhat), band(Jphi)
