@@ -1,0 +1,295 @@
+"""Shots on disk and shot processing, shared by the ``lab`` backend and the ``file`` backend.
+
+Run-directory layout written by the ``lab`` backend (all files written atomically)::
+
+    <run_dir>/shots/acquisition.json   format, status, instrument identities and settings,
+                                       processing options, shots requested/saved, error if any
+    <run_dir>/shots/excitation.npz     designed excitation (t [s], u) and the uploaded generator
+                                       points with the generator's actual sample rate
+    <run_dir>/shots/shot_0001.npz      one per shot, written as it arrives
+
+A shot file holds ``dt`` [s] (scope sample interval), ``u_raw`` / ``y_raw`` (int16 scope codes of
+the excitation and response channels), ``u`` / ``y`` [V] and ``meta`` (a JSON string: channel
+numbers, V/div, counts per division, block details, time stamp). Volts are
+``raw * (V/div) / counts_per_division`` (25 for the GDS-2000).
+
+Processing (:func:`combine`) turns shots into one ``t, u, y`` record: each shot's excitation
+channel is aligned with the reference (the waveform the generator actually played) by
+cross-correlation; both channels are cut from the burst start (minus nothing: t = 0 is the first
+sample of the burst), optionally baseline-corrected with the pre-burst samples, averaged over
+shots and scaled by the gains.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy import signal
+
+from mbus_framework.errors import DataError
+from mbus_framework.storage import atomic_write_json, atomic_write_npz, to_jsonable
+
+FORMAT = "mbus-lab-shots/1"
+SHOT_DIR = "shots"
+ACQUISITION_FILE = "acquisition.json"
+EXCITATION_FILE = "excitation.npz"
+MIN_SAMPLES = 16
+
+
+class AlignOptions(BaseModel):
+    """How the recorded excitation is matched to the designed one."""
+
+    model_config = ConfigDict(extra="forbid")
+    enabled: bool = Field(True, description="align each shot with the reference by cross-correlation")
+    min_correlation: float = Field(
+        0.8, ge=0, le=1, description="smallest acceptable normalised correlation (miswiring check)")
+    remove_baseline: bool = Field(True, description="subtract each channel's pre-burst mean")
+    window: Literal["excitation", "record"] = Field(
+        "excitation", description="keep the excitation's duration, or everything up to the record end")
+
+
+class ProcessingOptions(BaseModel):
+    """From shots to the fitted record (``backend.options.processing``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    align: AlignOptions = Field(default_factory=AlignOptions)
+    input: Literal["recorded", "designed"] = Field(
+        "recorded", description="u is the recorded excitation channel, or the designed waveform "
+                                "scaled to it by least squares")
+    u_gain: float = Field(1.0, description="model input per recorded volt on the excitation channel [N/V]")
+    y_gain: float = Field(1.0, description="model output per recorded volt on the response channel [N/V]")
+
+
+@dataclass
+class Shot:
+    """One two-channel record from the scope (volts and raw codes)."""
+
+    dt: float
+    u: np.ndarray
+    y: np.ndarray
+    u_raw: np.ndarray | None = None
+    y_raw: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Reference:
+    """What the generator played: ``values`` at ``rate`` [Hz], repeated ``repeats`` times."""
+
+    values: np.ndarray
+    rate: float
+    repeats: int = 1
+
+    def on_grid(self, dt: float) -> np.ndarray:
+        """Zero-order-hold resampling onto a grid of step ``dt`` [s] (the whole burst)."""
+        total = self.values.size * self.repeats
+        n = int(np.floor(total / (self.rate * dt) + 1e-6))
+        idx = np.floor(np.arange(n) * dt * self.rate + 1e-6).astype(np.int64)
+        return np.asarray(self.values, dtype=float)[idx % self.values.size]
+
+
+def now() -> str:
+    return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+# -- writing ---------------------------------------------------------------------------------
+def shot_path(shot_dir: Path, index: int) -> Path:
+    return Path(shot_dir) / f"shot_{index:04d}.npz"
+
+
+def save_shot(shot_dir: Path, index: int, shot: Shot) -> Path:
+    """Write one shot atomically (``shot_<index:04d>.npz``)."""
+    arrays = {"dt": np.float64(shot.dt), "u": np.asarray(shot.u, float), "y": np.asarray(shot.y, float),
+              "meta": np.array(json.dumps(to_jsonable(shot.meta)))}
+    if shot.u_raw is not None:
+        arrays["u_raw"] = np.asarray(shot.u_raw, np.int16)
+    if shot.y_raw is not None:
+        arrays["y_raw"] = np.asarray(shot.y_raw, np.int16)
+    return atomic_write_npz(shot_path(shot_dir, index), **arrays)
+
+
+def save_excitation(shot_dir: Path, t, u, points=None, points_rate: float | None = None, repeats: int = 1) -> Path:
+    arrays = {"t": np.asarray(t, float), "u": np.asarray(u, float)}
+    if points is not None:
+        arrays["points"] = np.asarray(points, np.int16)
+        arrays["points_rate_hz"] = np.float64(points_rate)
+        arrays["repeats"] = np.int64(repeats)
+    return atomic_write_npz(Path(shot_dir) / EXCITATION_FILE, **arrays)
+
+
+def write_acquisition(shot_dir: Path, record: dict[str, Any]) -> Path:
+    record = dict(record, format=FORMAT, updated=now())
+    return atomic_write_json(Path(shot_dir) / ACQUISITION_FILE, record)
+
+
+# -- reading ---------------------------------------------------------------------------------
+def find_shot_dir(path: Path) -> Path | None:
+    """The shot folder for a run directory or a shot folder, or None."""
+    path = Path(path)
+    for candidate in (path, path / SHOT_DIR):
+        if (candidate / ACQUISITION_FILE).is_file() or any(candidate.glob("shot_*.npz")):
+            return candidate
+    return None
+
+
+def load_shot(path: Path) -> Shot:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("dt", "u", "y") if k not in z.files]
+            if missing:
+                raise DataError(f"{path}: not a shot file (missing {', '.join(missing)})")
+            meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
+            shot = Shot(float(z["dt"]), np.asarray(z["u"], float), np.asarray(z["y"], float),
+                        z["u_raw"] if "u_raw" in z.files else None, z["y_raw"] if "y_raw" in z.files else None,
+                        meta)
+    except DataError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - corrupt zip, bad JSON, ...
+        raise DataError(f"{path}: unreadable shot file ({type(exc).__name__}: {exc})") from None
+    if shot.u.shape != shot.y.shape or shot.u.ndim != 1:
+        raise DataError(f"{path}: channels u and y differ in length ({shot.u.size} vs {shot.y.size})")
+    if not (np.isfinite(shot.dt) and shot.dt > 0):
+        raise DataError(f"{path}: sample interval dt = {shot.dt!r} is not positive")
+    return shot
+
+
+def rescale(shot: Shot, counts_per_division: float) -> Shot:
+    """Recompute volts from raw codes with a different counts-per-division factor."""
+    if shot.u_raw is None or shot.y_raw is None:
+        return shot
+    m = shot.meta
+    u = shot.u_raw.astype(float) * float(m["u_volts_per_div"]) / counts_per_division
+    y = shot.y_raw.astype(float) * float(m["y_volts_per_div"]) / counts_per_division
+    return Shot(shot.dt, u, y, shot.u_raw, shot.y_raw, dict(m, counts_per_division=counts_per_division))
+
+
+@dataclass
+class SavedRun:
+    shot_dir: Path
+    acquisition: dict[str, Any]
+    shots: list[Shot]
+    files: list[Path]
+    reference: Reference | None
+    designed_t: np.ndarray | None
+    designed_u: np.ndarray | None
+
+
+def load_run(path: Path) -> SavedRun:
+    """Read a shot folder (or the run directory holding ``shots/``)."""
+    shot_dir = find_shot_dir(path)
+    if shot_dir is None:
+        raise DataError(f"{path}: no saved shots (expected {SHOT_DIR}/{ACQUISITION_FILE} and shot_*.npz)")
+    acq_file = shot_dir / ACQUISITION_FILE
+    acquisition: dict[str, Any] = {}
+    if acq_file.is_file():
+        try:
+            acquisition = json.loads(acq_file.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise DataError(f"{acq_file}: not valid JSON ({exc})") from None
+        if acquisition.get("format") != FORMAT:
+            raise DataError(f"{acq_file}: unknown format {acquisition.get('format')!r} (expected {FORMAT})")
+    files = sorted(shot_dir.glob("shot_*.npz"))
+    if not files:
+        raise DataError(f"{shot_dir}: no shot_*.npz files (the acquisition saved no shot)")
+    shots = [load_shot(f) for f in files]
+    reference = designed_t = designed_u = None
+    exc_file = shot_dir / EXCITATION_FILE
+    if exc_file.is_file():
+        try:
+            with np.load(exc_file, allow_pickle=False) as z:
+                designed_t, designed_u = np.asarray(z["t"], float), np.asarray(z["u"], float)
+                if "points" in z.files:
+                    reference = Reference(np.asarray(z["points"], float), float(z["points_rate_hz"]),
+                                          int(z["repeats"]))
+        except Exception as exc:  # noqa: BLE001
+            raise DataError(f"{exc_file}: unreadable ({type(exc).__name__}: {exc})") from None
+    return SavedRun(shot_dir, acquisition, shots, files, reference, designed_t, designed_u)
+
+
+# -- processing ------------------------------------------------------------------------------
+def find_lag(recorded: np.ndarray, reference: np.ndarray) -> tuple[int, float, float]:
+    """Lag [samples] of ``reference`` inside ``recorded`` (may be negative), the normalised
+    correlation there and the most negative normalised correlation (inverted-channel check)."""
+    a = recorded - recorded.mean()
+    b = reference - reference.mean()
+    corr = signal.correlate(a, b, mode="full", method="fft")
+    lags = signal.correlation_lags(a.size, b.size, mode="full")
+    # Normalise by the energy of the overlapping parts so partial overlaps are not favoured.
+    a2 = np.concatenate([[0.0], np.cumsum(a * a)])
+    b2 = np.concatenate([[0.0], np.cumsum(b * b)])
+    lo_a = np.clip(lags, 0, a.size)
+    hi_a = np.clip(lags + b.size, 0, a.size)
+    lo_b = np.clip(-lags, 0, b.size)
+    hi_b = np.clip(a.size - lags, 0, b.size)
+    energy = np.sqrt((a2[hi_a] - a2[lo_a]) * (b2[hi_b] - b2[lo_b]))
+    overlap = hi_a - lo_a
+    usable = (energy > 0) & (overlap >= min(b.size, a.size) // 2)
+    rho = np.where(usable, corr / np.where(energy > 0, energy, 1.0), 0.0)
+    best = int(np.argmax(rho))
+    return int(lags[best]), float(rho[best]), float(rho.min())
+
+
+def combine(shots: list[Shot], reference: Reference | None, options: ProcessingOptions,
+            source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Align, cut, baseline-correct, average and scale shots; returns t [s], u, y and meta."""
+    if not shots:
+        raise DataError(f"{source}: no shots to process")
+    dt = shots[0].dt
+    for k, s in enumerate(shots[1:], start=2):
+        if abs(s.dt - dt) > 1e-6 * dt or s.u.size != shots[0].u.size:
+            raise DataError(f"{source}: shot {k} has dt {s.dt:.6g} s / {s.u.size} samples, shot 1 has "
+                            f"{dt:.6g} s / {shots[0].u.size}; cannot average shots with different settings")
+    align = options.align
+    meta: dict[str, Any] = {"shots_averaged": len(shots), "dt_s": dt, "input": options.input,
+                            "u_gain": options.u_gain, "y_gain": options.y_gain}
+    ref = reference.on_grid(dt) if reference is not None else None
+    cuts = []
+    if align.enabled and ref is not None:
+        if ref.size < MIN_SAMPLES:
+            raise DataError(f"{source}: the excitation covers only {ref.size} scope samples of {dt:.3g} s")
+        lags, rhos = [], []
+        for k, s in enumerate(shots, start=1):
+            lag, rho, rho_min = find_lag(s.u, ref)
+            if rho < align.min_correlation:
+                hint = " (the channel looks inverted)" if -rho_min >= align.min_correlation else ""
+                raise DataError(
+                    f"{source}: shot {k}: the excitation channel does not match the designed excitation "
+                    f"(best normalised correlation {rho:.2f} < {align.min_correlation}){hint}; check the "
+                    f"channel mapping, the trigger and the generator output")
+            if lag < 0:
+                raise DataError(f"{source}: shot {k}: the record starts {-lag} samples after the excitation "
+                                f"began; move the trigger point (timebase delay) so the burst start is recorded")
+            lags.append(lag)
+            rhos.append(rho)
+        available = min(s.u.size - lag for s, lag in zip(shots, lags))
+        n = min(ref.size, available) if align.window == "excitation" else available
+        if n < MIN_SAMPLES:
+            raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
+        for s, lag in zip(shots, lags):
+            u, y = s.u.astype(float), s.y.astype(float)
+            if align.remove_baseline and lag >= 8:
+                u, y = u - u[:lag].mean(), y - y[:lag].mean()
+            cuts.append((u[lag:lag + n], y[lag:lag + n]))
+        meta.update(lags_samples=lags, correlations=[round(r, 4) for r in rhos], window=align.window,
+                    excitation_samples_on_grid=int(ref.size), truncated=bool(n < ref.size))
+    else:
+        n = shots[0].u.size
+        cuts = [(s.u.astype(float), s.y.astype(float)) for s in shots]
+        meta["aligned"] = False
+    u = np.mean([c[0] for c in cuts], axis=0)
+    y = np.mean([c[1] for c in cuts], axis=0)
+    if options.input == "designed":
+        if ref is None:
+            raise DataError(f"{source}: input 'designed' needs the designed excitation")
+        r = ref[:n] if ref.size >= n else np.concatenate([ref, np.zeros(n - ref.size)])
+        r = r / float(np.max(np.abs(ref)))
+        gain = float(np.dot(u, r) / np.dot(r, r))
+        meta["designed_peak_v"] = gain  # recorded volts at the designed waveform's peak
+        u = gain * r
+    t = np.arange(n) * dt
+    return t, options.u_gain * u, options.y_gain * y, meta
