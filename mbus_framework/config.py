@@ -7,6 +7,7 @@ path, with a 'did you mean' for misspelt keys.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, Literal
 
@@ -15,6 +16,29 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationErro
 
 from .errors import ConfigError
 from .suggest import did_you_mean
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """Safe loader that also reads 1e-6 and 6.0e8 as floats (YAML 1.1 wants 1.0e-6, 6.0e+8)."""
+
+
+ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def yaml_load(text: str):
+    """Parse YAML text with :class:`ConfigLoader` (safe: no Python object tags)."""
+    return yaml.load(text, Loader=ConfigLoader)  # noqa: S506 - ConfigLoader is a SafeLoader
 
 
 class _Strict(BaseModel):
@@ -36,12 +60,48 @@ class PluginRef(_Strict):
     options: dict[str, Any] = Field(default_factory=dict)
 
 
+class CompensatorRef(PluginRef):
+    """``compensator``: optional; ``name`` defaults to ``none``."""
+
+    name: str = "none"
+
+
+class SolverRef(PluginRef):
+    """``solver``: optional; ``name`` defaults to ``scipy_lm``."""
+
+    name: str = "scipy_lm"
+
+
 class ModelConfig(PluginRef):
     """``model``: the medium model to fit."""
 
     initial: dict[str, float] | None = Field(None, description="initial parameters (or properties)")
     fixed: dict[str, float] = Field(default_factory=dict, description="parameters held at these values")
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold between samples")
+
+
+class NuisanceValue(_Strict):
+    """One nuisance parameter: its value (initial when estimated) and whether to estimate it."""
+
+    estimate: bool = False
+    value: float | None = None
+
+
+class NuisanceConfig(_Strict):
+    """``nuisance``: rig parameters that are not material properties."""
+
+    input_gain: NuisanceValue = Field(
+        default_factory=NuisanceValue, description="force per recorded input unit [N/unit], default 1"
+    )
+    delay: NuisanceValue = Field(default_factory=NuisanceValue, description="trigger offset [s], default 0")
+    max_delay: PositiveFloat | None = Field(None, description="upper bound of the delay [s] (default: half the record)")
+
+
+class IdentifiabilityConfig(_Strict):
+    """``identifiability``: when the run warns instead of printing confident numbers."""
+
+    max_correlation: float = Field(0.95, gt=0, le=1, description="|correlation| above this is flagged")
+    max_relative_se: float = Field(0.5, gt=0, description="standard error / |estimate| above this is flagged")
 
 
 class OutputConfig(_Strict):
@@ -59,8 +119,10 @@ class RunConfig(_Strict):
     model: ModelConfig
     excitation: PluginRef
     backend: PluginRef
-    compensator: PluginRef = Field(default_factory=lambda: PluginRef(name="none"))
-    solver: PluginRef = Field(default_factory=lambda: PluginRef(name="scipy_lm"))
+    compensator: CompensatorRef = Field(default_factory=CompensatorRef)
+    solver: SolverRef = Field(default_factory=SolverRef)
+    nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
+    identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
 
 
@@ -74,7 +136,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read config ({type(exc).__name__})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -98,7 +160,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--
         if not sep or not key or any(not part for part in key.split(".")):
             raise ConfigError(f"{where} '{item}': expected dotted.key=value")
         try:
-            value = yaml.safe_load(text) if text.strip() else ""
+            value = yaml_load(text) if text.strip() else ""
         except yaml.YAMLError:
             value = text
         node = out
@@ -143,7 +205,8 @@ def validate_options(options_model: type[BaseModel], options: Any, where: str, s
 
 def format_validation_error(exc: ValidationError, root: type[BaseModel], prefix: str = "") -> str:
     """One line for the first error: key path, problem, offending value, suggestion."""
-    errors = exc.errors()
+    # A misspelt key shows up twice (unknown key + missing key); the unknown key explains both.
+    errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
     err = errors[0]
     loc = [str(p) for p in err["loc"]]
     path = ".".join([prefix] * bool(prefix) + loc)

@@ -47,6 +47,8 @@ class Parameter:
     becomes value * c**e. Stiffness [N/m]: 2, damping [N s/m]: 1, relaxation time [s]: -1,
     dimensionless: 0. Estimators use it to align the model's wave arrival with the data
     before any local fit (the first-arrival -> sound-speed idea of Section 3.5.1, generalised).
+    ``log_scale``: estimate ln(value) (positive parameters spanning decades); False for
+    parameters that may be zero, such as a delay.
     """
 
     name: str
@@ -56,6 +58,7 @@ class Parameter:
     upper: float = np.inf
     typical: float = 1.0
     time_exponent: float = 0.0
+    log_scale: bool = True
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,14 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
             f"  strategy: start from {strat.get('initial_source')}, {len(strat['starts'])} start(s) tried, "
             f"start {strat.get('winner')} won; accepted: {strat.get('accepted_because', '')}"
         )
+    crb = unc.get("cramer_rao", {})
+    if crb:
+        lines.append(
+            "  Cramer-Rao standard errors at the truth: "
+            + ", ".join(f"{n} {100 * v / abs(truth[n]):.3g}%" for n, v in crb.items() if truth.get(n))
+        )
+    for w in result.get("warnings", []):
+        lines.append(f"  WARNING: {w}")
     if run_dir is not None:
         lines.append(f"  output: {run_dir}")
     return "\n".join(lines)

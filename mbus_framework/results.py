@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import __version__
+from .nuisance import DELAY, GAIN
 from .uncertainty import from_jacobian, property_covariance
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -19,7 +20,8 @@ if TYPE_CHECKING:  # pragma: no cover
 def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: "FitResult", waveform: "Waveform") -> dict[str, Any]:
     model = c.model
     theta = fit.theta
-    props = model.to_properties(theta)
+    n_model = problem.n_model
+    props = model.to_properties(theta[:n_model])
     r = fit.residuals
     y = problem.y
     mse = float(np.mean(r**2))
@@ -35,7 +37,7 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
             "n_states": int(model.state_space(theta).A.shape[0]),
         },
         "parameters": fit.parameters,
-        "parameter_units": {p.name: p.unit for p in model.parameters},
+        "parameter_units": {p.name: p.unit for p in problem.parameters},
         "properties": props,
         "property_units": {p.name: p.unit for p in model.properties},
         "fixed": dict(problem.fixed),
@@ -66,7 +68,10 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         unc = from_jacobian(names, fit.jacobian, fit.cost)
         free_values = theta[fit.free]
         ci = unc.intervals(free_values)
-        pnames, pvalues, pcov = property_covariance(model.to_properties, theta, fit.free, unc.covariance)
+        model_free = fit.free[:n_model]
+        in_model = np.flatnonzero(fit.free) < n_model  # free entries that are model parameters
+        cov_model = unc.covariance[np.ix_(in_model, in_model)]
+        pnames, pvalues, pcov = property_covariance(model.to_properties, theta[:n_model], model_free, cov_model)
         pse = np.sqrt(np.clip(np.diag(pcov), 0, None))
         q = ci[:, 1] - free_values  # t-quantile * SE, same for properties
         qfac = (q / unc.standard_errors)[0] if unc.standard_errors[0] > 0 else 1.96
@@ -83,9 +88,86 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
     if m.truth:
         truth = {k: float(v) for k, v in m.truth.items()}
         tprops = model.to_properties(np.array([truth[n] for n in model.parameter_names]))
+        if problem.nuisance.active:
+            truth[GAIN] = float(m.meta.get("true_input_gain", 1.0))
+            truth[DELAY] = float(m.meta.get("true_delay_s", 0.0))
         result["truth"] = truth
         result["truth_properties"] = tprops
         result["error_percent"] = {n: 100.0 * (fit.parameters[n] / truth[n] - 1.0) for n in truth if truth[n] != 0}
+        if "uncertainty" in result and m.meta.get("noise_std"):
+            crb = cramer_rao(problem, np.array([truth[n] for n in problem.names]), float(m.meta["noise_std"]))
+            result["uncertainty"]["cramer_rao"] = crb
     elif m.meta.get("true_properties"):
         result["truth_properties"] = m.meta["true_properties"]
+    result["warnings"] = identifiability_warnings(result, c.config.identifiability, fit)
     return result
+
+
+def cramer_rao(problem: "FitProblem", theta_true: np.ndarray, noise_std: float) -> dict[str, float]:
+    """Cramer-Rao standard errors at the truth: sqrt(diag(sigma^2 (J^T J)^-1)), sigma known."""
+    _, J = problem.predict_with_jacobian(theta_true)
+    names = [n for n, f in zip(problem.names, problem.free) if f]
+    unc = from_jacobian(names, J[:, problem.free], cost=0.0, scale=noise_std**2)
+    return dict(zip(names, map(float, unc.standard_errors)))
+
+
+def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -> list[str]:
+    """Plain-language warnings: unconverged solver, unconfirmed minimum, strong correlations,
+    large standard errors."""
+    out: list[str] = []
+    if not fit.success:
+        out.append(f"the solver did not report convergence ({fit.message}); treat the estimates with care")
+    strategy = result.get("strategy") or {}
+    if strategy.get("accepted_because", "").startswith("best of"):
+        out.append(
+            "the global minimum is not confirmed: no start left white residuals and no two starts agreed "
+            "(model mismatch, coloured noise, or a multimodal cost); consider more starts or another model"
+        )
+    unc = result.get("uncertainty")
+    if not unc:
+        return out
+    names = unc["correlation"]["names"]
+    corr = np.asarray(unc["correlation"]["matrix"])
+    for group, worst in correlated_groups(names, corr, limits.max_correlation):
+        out.append(
+            f"{_join(group)} are correlated (|r| up to {worst:.3f} > {limits.max_correlation}): the data "
+            f"cannot tell them apart, so their individual values are unreliable"
+        )
+    bad = {n: r for n, r in unc["relative_standard_errors"].items() if not np.isfinite(r) or r > limits.max_relative_se}
+    if bad:
+        listed = ", ".join(f"{n} ({100 * r:.3g} %)" if np.isfinite(r) else f"{n} (undefined)" for n, r in bad.items())
+        out.append(
+            f"practically unidentifiable, standard error above {100 * limits.max_relative_se:.0f} % of the "
+            f"estimate: {listed}; do not report these values"
+        )
+    return out
+
+
+def correlated_groups(names: list[str], corr: np.ndarray, threshold: float) -> list[tuple[list[str], float]]:
+    """Connected groups of parameters linked by |correlation| > threshold, with the largest |r|."""
+    n = len(names)
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(corr[i, j]) > threshold:
+                parent[find(i)] = find(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(find(i), []).append(i)
+    out = []
+    for members in groups.values():
+        if len(members) > 1:
+            worst = max(abs(corr[i, j]) for i in members for j in members if i < j)
+            out.append(([names[i] for i in members], float(worst)))
+    return out
+
+
+def _join(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]

@@ -19,6 +19,7 @@ from .config import RunConfig, load_config, validate_options
 from .errors import ConfigError, EstimationError
 from .excitation import Excitation, Waveform
 from .model import MediumModel
+from .nuisance import NuisanceSettings
 from .registry import Registry, default_registry
 from .results import build_result
 from .sample import Sample
@@ -119,10 +120,26 @@ def acquire(c: Components, run_dir: Path, waveform: Waveform) -> Measurement:
     return m
 
 
+def nuisance_settings(config: RunConfig) -> NuisanceSettings:
+    n = config.nuisance
+    return NuisanceSettings(
+        estimate_gain=n.input_gain.estimate,
+        gain=1.0 if n.input_gain.value is None else n.input_gain.value,
+        estimate_delay=n.delay.estimate,
+        delay=0.0 if n.delay.value is None else n.delay.value,
+        max_delay=n.max_delay,
+    )
+
+
 def make_problem(c: Components, m: Measurement) -> FitProblem:
+    nuisance = nuisance_settings(c.config)
     initial = None
     if c.config.model.initial:
         initial = c.model.theta_from_mapping(c.config.model.initial, f"{c.source}: model.initial")
+        if nuisance.active:
+            initial = np.r_[initial, nuisance.gain, nuisance.delay]
+    if nuisance.active and c.config.model.hold != "zoh":
+        raise ConfigError(f"{c.source}: nuisance: an input gain or delay needs model.hold: zoh")
     return FitProblem(
         model=c.model,
         t=m.t,
@@ -132,6 +149,7 @@ def make_problem(c: Components, m: Measurement) -> FitProblem:
         fixed=dict(c.config.model.fixed),
         hold=c.config.model.hold,
         output_filter=c.compensator.output_filter(),
+        nuisance=nuisance,
     )
 
 

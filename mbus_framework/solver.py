@@ -17,7 +17,8 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
-from .model import MediumModel, NoOptions
+from .model import MediumModel, NoOptions, Parameter
+from .nuisance import DELAY, GAIN, NuisanceSettings, delayed_prediction, delayed_prediction_with_jacobian
 from .simulation import Hold, simulate, simulate_with_sensitivities
 
 OutputFilter = Callable[[np.ndarray, float], np.ndarray]
@@ -33,6 +34,8 @@ class FitProblem:
     lower/upper: bounds on the full parameter vector.
     hold:      'zoh' or 'foh' input reconstruction between samples.
     output_filter: linear map applied to model outputs and sensitivities (compensators).
+    nuisance:  input gain and delay (:mod:`mbus_framework.nuisance`); when active, the
+               parameter vector is the model's followed by ``input_gain`` and ``delay``.
     """
 
     model: MediumModel
@@ -45,19 +48,60 @@ class FitProblem:
     upper: np.ndarray | None = None
     hold: Hold = "zoh"
     output_filter: OutputFilter | None = None
+    nuisance: NuisanceSettings = field(default_factory=NuisanceSettings)
 
     def __post_init__(self):
-        lo, hi = self.model.bounds()
+        self.t, self.u, self.y = (np.asarray(a, dtype=float) for a in (self.t, self.u, self.y))
+        if self.nuisance.active and self.hold != "zoh":
+            raise ValueError("an input gain or delay needs hold='zoh'")
+        params = self.parameters
+        lo = np.array([p.lower for p in params], dtype=float)
+        hi = np.array([p.upper for p in params], dtype=float)
         self.lower = lo if self.lower is None else np.asarray(self.lower, float)
         self.upper = hi if self.upper is None else np.asarray(self.upper, float)
+        fixed = dict(self.fixed)
+        if self.nuisance.active:
+            if not self.nuisance.estimate_gain:
+                fixed.setdefault(GAIN, self.nuisance.gain)
+            if not self.nuisance.estimate_delay:
+                fixed.setdefault(DELAY, self.nuisance.delay)
+        self.fixed = fixed
 
     @property
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
 
     @property
+    def parameters(self) -> list[Parameter]:
+        """The model's parameters, then the nuisance parameters when active."""
+        params = list(self.model.parameters)
+        if self.nuisance.active:
+            params += self.nuisance.parameters(self.dt, float(self.t[-1] - self.t[0]))
+        return params
+
+    @property
+    def n_model(self) -> int:
+        """Number of leading entries of theta that belong to the medium model."""
+        return len(self.model.parameters)
+
+    @property
     def names(self) -> list[str]:
-        return self.model.parameter_names
+        return [p.name for p in self.parameters]
+
+    def default_initial(self) -> np.ndarray:
+        """The model's physics-based guess, plus the configured nuisance values."""
+        guess = list(np.asarray(self.model.initial_guess(self.t, self.u, self.y), dtype=float))
+        if self.nuisance.active:
+            guess += [self.nuisance.gain, self.nuisance.delay]
+        return np.array(guess)
+
+    def split(self, theta: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """(model parameters, gain, delay)."""
+        theta = np.asarray(theta, dtype=float)
+        if not self.nuisance.active:
+            return theta, 1.0, 0.0
+        n = self.n_model
+        return theta[:n], float(theta[n]), float(theta[n + 1])
 
     @property
     def free(self) -> np.ndarray:
@@ -74,12 +118,23 @@ class FitProblem:
         return theta
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
-        yhat = simulate(self.model, theta, self.u, self.dt, self.hold)
+        model_theta, gain, delay = self.split(theta)
+        if self.nuisance.active:
+            yhat = delayed_prediction(self.model, model_theta, self.u, self.dt, gain, delay)
+        else:
+            yhat = simulate(self.model, model_theta, self.u, self.dt, self.hold)
         return self.output_filter(yhat, self.dt) if self.output_filter else yhat
 
     def predict_with_jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Prediction (N,) and exact d yhat / d theta (N, p) for the full vector."""
-        yhat, J = simulate_with_sensitivities(self.model, theta, self.u, self.dt, self.hold)
+        model_theta, gain, delay = self.split(theta)
+        if self.nuisance.active:
+            yhat, Jm, dgain, ddelay = delayed_prediction_with_jacobian(
+                self.model, model_theta, self.u, self.dt, gain, delay
+            )
+            J = np.column_stack([Jm, dgain, ddelay])
+        else:
+            yhat, J = simulate_with_sensitivities(self.model, model_theta, self.u, self.dt, self.hold)
         if self.output_filter:
             yhat, J = self.output_filter(yhat, self.dt), self.output_filter(J, self.dt)
         return yhat, J

@@ -132,7 +132,7 @@ def signal_bandwidth(y: np.ndarray, dt: float, fraction: float = 0.99) -> float:
 
 
 def time_exponents(problem: FitProblem) -> np.ndarray:
-    return np.array([p.time_exponent for p in problem.model.parameters], dtype=float)
+    return np.array([p.time_exponent for p in problem.parameters], dtype=float)
 
 
 def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int | None = None):
@@ -208,7 +208,7 @@ def search(
     if problem.initial is not None:
         theta0, source = problem.full(np.asarray(problem.initial, float)[problem.free], problem.initial), "config"
     else:
-        guess = problem.model.initial_guess(problem.t, problem.u, problem.y)
+        guess = problem.default_initial()
         theta0, source = problem.full(np.asarray(guess, float)[problem.free], guess), "model.initial_guess"
     theta0 = np.clip(theta0, problem.lower, problem.upper)
     report = SearchReport(source, dict(zip(names, map(float, theta0))))

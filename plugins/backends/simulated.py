@@ -5,6 +5,7 @@ optionally another model or element count given under ``medium``), simulated exa
 (:mod:`mbus_framework.simulation`). Noise is explicit:
 
     y = y_true + e,   e ~ N(0, sigma^2) i.i.d.,
+    y_true(t) = g * y_medium(t - tau)    (g = input_gain, tau = delay; defaults 1 and 0)
     sigma = relative_std * RMS(y_true)   (or absolute_std [N] when given)
 
 and optionally the recorded input is noisy too (input_relative_std * RMS(u)). The noise
@@ -20,7 +21,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.config import validate_options
+from mbus_framework.errors import ConfigError
 from mbus_framework.hookspecs import BackendSpec, hookimpl
+from mbus_framework.nuisance import delayed_prediction
 from mbus_framework.simulation import simulate
 
 
@@ -45,6 +48,8 @@ class SimulatedOptions(BaseModel):
     noise: NoiseOptions = Field(default_factory=NoiseOptions)
     seed: int = Field(0, description="seed of the noise generator")
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold used to simulate the truth")
+    input_gain: float = Field(1.0, gt=0, description="true force per recorded input unit [N/unit]")
+    delay: float = Field(0.0, ge=0, description="true trigger offset of the received wave [s]")
 
 
 class SimulatedBackend(Backend):
@@ -62,7 +67,13 @@ class SimulatedBackend(Backend):
             medium = spec.implementation(context.sample, opts)
         theta = medium.theta_from_mapping(o.truth, "backend.options.truth")
         t, u = context.excitation.t, context.excitation.u
-        y_true = simulate(medium, theta, u, float(t[1] - t[0]), o.hold)
+        dt = float(t[1] - t[0])
+        if o.delay > 0:
+            if o.hold != "zoh":
+                raise ConfigError(f"{context.config_path}: backend.options.delay needs hold: zoh")
+            y_true = delayed_prediction(medium, theta, u, dt, o.input_gain, o.delay)
+        else:
+            y_true = o.input_gain * simulate(medium, theta, u, dt, o.hold)
         rng = np.random.default_rng(o.seed)
         sigma = o.noise.absolute_std if o.noise.absolute_std is not None else o.noise.relative_std * _rms(y_true)
         y = y_true + rng.normal(0.0, sigma, y_true.shape) if sigma > 0 else y_true.copy()
@@ -78,6 +89,8 @@ class SimulatedBackend(Backend):
             "noise_std": float(sigma),
             "input_noise_std": float(sigma_u),
             "seed": o.seed,
+            "true_input_gain": o.input_gain,
+            "true_delay_s": o.delay,
         }
         return Measurement(t.copy(), u_meas, y, truth=truth, meta=meta)
 

@@ -65,43 +65,36 @@ class ScipyLM(Solver):
         self, problem: FitProblem, theta0: np.ndarray, band: BandFilter | None, max_nfev: int, final: bool
     ) -> LocalResult:
         free = problem.free
-        phi0 = np.log(theta0[free])
-        lo_phi, hi_phi = phi0 - LOG_RANGE, phi0 + LOG_RANGE
-        with np.errstate(divide="ignore"):
-            lo_phi = np.maximum(lo_phi, np.log(problem.lower[free]))
-            hi_phi = np.minimum(hi_phi, np.log(problem.upper[free]))
+        coords = Coordinates(problem, theta0)
         y = band(problem.y) if band else problem.y
         scale = float(np.sqrt(np.mean(problem.y**2))) or 1.0
         trace: list[dict] = []
 
-        def theta_of(phi):
-            return problem.full(np.exp(np.clip(phi, lo_phi, hi_phi)), theta0)
-
-        def residual(phi):
+        def residual(z):
             with np.errstate(over="ignore", invalid="ignore"):
-                yhat = problem.predict(theta_of(phi))
+                yhat = problem.predict(coords.theta(z))
             r = (band(yhat) if band else yhat) - y
             if not np.all(np.isfinite(r)):
                 return np.full_like(y, 1e6 * scale)
             return r
 
-        def jacobian(phi):
-            theta = theta_of(phi)
+        def jacobian(z):
+            theta = coords.theta(z)
             with np.errstate(over="ignore", invalid="ignore"):
                 yhat, J = problem.predict_with_jacobian(theta)
-            Jphi = J[:, free] * theta[free]
+            Jz = J[:, free] * coords.dtheta_dz(theta)
             if band:
-                yhat, Jphi = band(yhat), band(Jphi)
+                yhat, Jz = band(yhat), band(Jz)
             r = yhat - y
             trace.append({"iteration": len(trace), "cost": 0.5 * float(r @ r), "theta": theta.tolist()})
-            if not np.all(np.isfinite(Jphi)):
-                return np.zeros_like(Jphi)
-            return Jphi
+            if not np.all(np.isfinite(Jz)):
+                return np.zeros_like(Jz)
+            return Jz
 
         jac = jacobian if self.options.jacobian == "exact" else "2-point"
         tol = dict(xtol=self.options.xtol, ftol=self.options.ftol) if final else dict(xtol=1e-6, ftol=1e-8)
-        res = least_squares(residual, phi0, jac=jac, method="lm", max_nfev=max_nfev, x_scale=1.0, **tol)
-        theta = theta_of(res.x)
+        res = least_squares(residual, coords.z0, jac=jac, method="lm", max_nfev=max_nfev, x_scale=1.0, **tol)
+        theta = coords.theta(res.x)
         njev = int(res.njev or 0) if res.njev is not None else 0
         return LocalResult(
             theta=theta,
@@ -113,6 +106,36 @@ class ScipyLM(Solver):
             iterations=njev,
             trace=trace,
         )
+
+
+class Coordinates:
+    """Unconstrained coordinates z of the free parameters.
+
+    log-scale parameters: z = ln(theta), moving at most e^23 from the start;
+    linear ones (e.g. a delay): z = theta / typical. Values are clipped to the bounds.
+    """
+
+    def __init__(self, problem: FitProblem, theta0: np.ndarray):
+        self.problem, self.theta0 = problem, np.asarray(theta0, dtype=float)
+        params = [p for p, f in zip(problem.parameters, problem.free) if f]
+        self.log = np.array([p.log_scale for p in params], dtype=bool)
+        self.unit = np.array([p.typical if p.typical > 0 else 1.0 for p in params])
+        start = self.theta0[problem.free]
+        lo, hi = problem.lower[problem.free], problem.upper[problem.free]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.z0 = np.where(self.log, np.log(np.maximum(start, 1e-300)), start / self.unit)
+            zlo = np.where(self.log, np.log(lo), lo / self.unit)
+            zhi = np.where(self.log, np.log(hi), hi / self.unit)
+        self.zlo = np.where(self.log, np.maximum(zlo, self.z0 - LOG_RANGE), zlo)
+        self.zhi = np.where(self.log, np.minimum(zhi, self.z0 + LOG_RANGE), zhi)
+
+    def theta(self, z: np.ndarray) -> np.ndarray:
+        z = np.clip(z, self.zlo, self.zhi)
+        free_values = np.where(self.log, np.exp(np.where(self.log, z, 0.0)), z * self.unit)
+        return self.problem.full(free_values, self.theta0)
+
+    def dtheta_dz(self, theta: np.ndarray) -> np.ndarray:
+        return np.where(self.log, theta[self.problem.free], self.unit)
 
 
 @hookimpl
