@@ -31,6 +31,29 @@ def _parser() -> argparse.ArgumentParser:
         help="override a config key, e.g. --set solver.options.strategy.n_starts=4 (repeatable)",
     )
     p.add_argument("--list-plugins", action="store_true", help="show registered plugins and where they come from")
+    p.add_argument(
+        "--study",
+        metavar="KIND",
+        help="run a study over the config instead of one fit: monte_carlo, element_sweep, repeatability",
+    )
+    p.add_argument(
+        "--study-option",
+        dest="study_options",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="study option, e.g. --study-option n_runs=20 (repeatable)",
+    )
+    p.add_argument(
+        "--compare-models",
+        metavar="NAMES",
+        help="fit several models (comma-separated names) to the same data and rank them",
+    )
+    p.add_argument(
+        "--design-excitation",
+        action="store_true",
+        help="rank candidate excitations by D-optimality for the config's model and transducer band",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
@@ -55,6 +78,34 @@ def list_plugins() -> str:
     return "\n".join(lines)
 
 
+def _special_mode(args, progress) -> str | None:
+    """Studies, model comparison, excitation design and calibration runs; None for a plain fit."""
+    if args.study:
+        from .studies import parse_study_options, run_study
+
+        result = run_study(
+            args.study, args.config, args.overrides, args.out, progress, **parse_study_options(args.study_options)
+        )
+        return result.text
+    if args.compare_models:
+        from .compare import run_comparison
+
+        names = [n.strip() for n in args.compare_models.split(",") if n.strip()]
+        _table, text = run_comparison(args.config, names, args.overrides, out_dir=args.out)
+        return text
+    if args.design_excitation:
+        from .design import run_design
+
+        return run_design(args.config, args.overrides, args.out)
+    from .config import load_config
+
+    if load_config(args.config, args.overrides).calibration is not None:
+        from .calibration import run_calibration
+
+        return run_calibration(args.config, args.overrides, args.out, progress)
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -70,6 +121,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from .run import execute
 
         progress = None if args.quiet else make_progress()
+        special = _special_mode(args, progress)
+        if special is not None:
+            print(special)
+            return 0
         outcome = execute(
             args.config,
             args.overrides,

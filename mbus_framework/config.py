@@ -123,6 +123,9 @@ class RunConfig(_Strict):
     solver: SolverRef = Field(default_factory=SolverRef)
     nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
+    calibration: dict[str, Any] | None = Field(
+        None, description="makes the run a transducer calibration (see mbus_framework.calibration)"
+    )
     output: OutputConfig = Field(default_factory=OutputConfig)
 
 

@@ -125,16 +125,22 @@ def write_plots(
         names = fit.names
         theta = np.array([rec["theta"] for rec in fit.trace])
         cost = np.array([rec["cost"] for rec in fit.trace])
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+        stages = [rec.get("stage", "") for rec in fit.trace]
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+        final = np.where(theta[-1] != 0, theta[-1], 1.0)
         for i, n in enumerate(names):
-            ax1.plot(theta[:, i] / theta[-1, i], marker=".", label=n)
+            ax1.plot(theta[:, i] / final[i], marker=".", label=n)
         ax1.set_xlabel("iteration")
         ax1.set_ylabel("parameter / final value")
         ax1.legend()
         ax2.semilogy(cost, marker=".")
+        for k in range(1, len(stages)):
+            if stages[k] != stages[k - 1]:
+                for ax in (ax1, ax2):
+                    ax.axvline(k - 0.5, color="0.8", lw=0.8)
         ax2.set_xlabel("iteration")
-        ax2.set_ylabel("cost 1/2 sum r^2")
-        fig.suptitle("convergence of the final refinement")
+        ax2.set_ylabel("cost 1/2 sum r^2 (band stages: filtered)")
+        fig.suptitle("convergence of the winning start (Fig. 3.8); grey lines: continuation stages")
         fig.tight_layout()
         fig.savefig(run_dir / "convergence.png", dpi=110)
         plt.close(fig)

@@ -153,6 +153,15 @@ def make_problem(c: Components, m: Measurement) -> FitProblem:
     )
 
 
+def write_trace(path: Path, fit: FitResult) -> None:
+    """Convergence trace (Fig. 3.8): iteration, stage, cost, then one column per parameter."""
+    lines = [",".join(["iteration", "stage", "cost", *fit.names])]
+    for rec in fit.trace:
+        values = ",".join(f"{v:.17g}" for v in rec["theta"])
+        lines.append(f"{rec['iteration']},{rec.get('stage', '')},{rec['cost']:.17g},{values}")
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
 def execute(
     config_path: str | Path,
     overrides: list[str] | None = None,
@@ -180,6 +189,9 @@ def execute(
     except np.linalg.LinAlgError as exc:
         raise EstimationError(f"{source}: estimation failed: {exc}") from None
     result = build_result(c, measurement, problem, fit, waveform)
+    if fit.trace:
+        write_trace(run_dir / "trace.csv", fit)
+        result["files"]["trace"] = "trace.csv"
     atomic_write_json(run_dir / "result.json", result)
     if plots if plots is not None else config.output.plots:
         from .report import write_plots

@@ -40,7 +40,7 @@ class StrategyOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     time_scale: bool = Field(True, description="align the arrival time by a 1-D time-scale search")
     time_scale_range: float = Field(4.0, gt=1, description="search time scales c in [1/r, r]")
-    time_scale_points: int = Field(41, ge=3, description="grid points of the time-scale search")
+    time_scale_points: int = Field(40, ge=3, description="grid points of the time-scale search")
     bands: list[float] = Field(
         default_factory=lambda: [0.15, 0.3, 0.6],
         description="low-pass cut-offs of the continuation, as fractions of the signal bandwidth; "
@@ -176,7 +176,7 @@ def _explained_energy(problem: FitProblem, theta: np.ndarray) -> float:
     return float(yhat @ problem.y) ** 2 / denom
 
 
-def coordinate_scan(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int = 17):
+def coordinate_scan(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int = 16):
     """Per-parameter log-grid scan (x/÷ spread) keeping each best point; returns (theta, nfev)."""
     theta = theta.copy()
     nfev = 0
@@ -251,11 +251,14 @@ def search(
             entry["scanned"] = dict(zip(names, map(float, start)))
         res = None
         theta = start
+        path: list[dict] = []
         for bf in filters:
             res = local_fit(problem, theta, bf, options.stage_max_nfev, False)
             nfev, njev, theta = nfev + res.nfev, njev + res.njev, res.theta
+            path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
         res = local_fit(problem, theta, None, 2 * options.stage_max_nfev, False)
         nfev, njev = nfev + res.nfev, njev + res.njev
+        res.trace = path + _stage_trace(res, "full band")
         entry.update(end=dict(zip(names, map(float, res.theta))), cost=res.cost)
         report.starts.append(entry)
         if best is None or res.cost < best.cost * (1 - 1e-9):
@@ -283,8 +286,19 @@ def search(
     nfev, njev = nfev + final.nfev, njev + final.njev
     if final.cost > best.cost:  # refinement never makes things worse
         final = best
+    else:
+        final.trace = best.trace + _stage_trace(final, "refinement")
+    for i, rec in enumerate(final.trace):
+        rec["iteration"] = i
     report.wall_time_s = time.perf_counter() - t0
     return final, report, nfev, njev
+
+
+def _stage_trace(res: LocalResult, stage: str) -> list[dict]:
+    """The Jacobian-evaluation records of one local solve, labelled with their stage.
+
+    Costs of band stages are those of the band-limited residual."""
+    return [dict(rec, stage=stage) for rec in res.trace]
 
 
 def residual_whiteness(problem: FitProblem, theta: np.ndarray, lags: int = 10) -> float:
