@@ -91,7 +91,9 @@ def _special_mode(args, progress) -> str | None:
         from .compare import run_comparison
 
         names = [n.strip() for n in args.compare_models.split(",") if n.strip()]
-        _table, text = run_comparison(args.config, names, args.overrides, out_dir=args.out)
+        _table, text = run_comparison(
+            args.config, names, args.overrides, out_dir=args.out, progress=progress, plots=False if args.no_plots else None
+        )
         return text
     if args.design_excitation:
         from .design import run_design

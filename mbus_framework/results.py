@@ -40,6 +40,7 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         "parameter_units": {p.name: p.unit for p in problem.parameters},
         "properties": props,
         "property_units": {p.name: p.unit for p in model.properties},
+        "derived_properties": _derived(model, theta[:n_model]),
         "fixed": dict(problem.fixed),
         "fit": {
             "mse": mse,
@@ -101,6 +102,12 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         result["truth_properties"] = m.meta["true_properties"]
     result["warnings"] = identifiability_warnings(result, c.config.identifiability, fit)
     return result
+
+
+def _derived(model, theta: np.ndarray) -> dict[str, float]:
+    """Non-invertible extras a model offers (relaxation times [s], unrelaxed moduli [Pa])."""
+    derived = getattr(model, "derived_properties", None)
+    return dict(derived(theta)) if callable(derived) else {}
 
 
 def cramer_rao(problem: "FitProblem", theta_true: np.ndarray, noise_std: float) -> dict[str, float]:
