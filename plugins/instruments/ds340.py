@@ -26,7 +26,6 @@ Every failure raises :class:`~mbus_framework.errors.InstrumentError` with the me
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from typing import Any, Callable, Literal
 
 import numpy as np
@@ -34,6 +33,8 @@ import serial
 from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.errors import InstrumentError
+
+from .common import ESR_ERROR_MASK, Ieee4882Instrument, describe_esr, one_line, show
 
 try:  # POSIX serial ports raise termios.error (not an OSError) when the device has gone
     import termios
@@ -45,9 +46,6 @@ except ImportError:  # pragma: no cover - Windows
 POINT_LIMIT = 2047
 """Largest magnitude of an arbitrary-waveform point (full scale = +-AMPL/2)."""
 
-ESR_ERROR_BITS = {2: "query error", 3: "device error", 4: "execution error (value out of range)",
-                  5: "command error (unknown command or syntax)"}
-ESR_ERROR_MASK = sum(1 << b for b in ESR_ERROR_BITS)
 
 _TERMINATORS = {"\n": "LF", "\r": "CR", "\r\n": "CR LF"}
 
@@ -104,12 +102,7 @@ def scale_to_points(u: np.ndarray) -> np.ndarray:
     return np.round(u / peak * POINT_LIMIT).astype(np.int16)
 
 
-def describe_esr(value: int) -> str:
-    names = [name for bit, name in ESR_ERROR_BITS.items() if value & (1 << bit)]
-    return ", ".join(names) if names else "no error bits"
-
-
-class DS340:
+class DS340(Ieee4882Instrument):
     """Driver; use as a context manager or call :meth:`open` / :meth:`close`.
 
     ``serial_factory`` builds the port (default :func:`serial.serial_for_url`, which takes
@@ -119,35 +112,21 @@ class DS340:
     name = "DS340"
 
     def __init__(self, options: DS340Options, serial_factory: Callable[..., Any] = serial.serial_for_url):
-        self.options = options
+        super().__init__(options)
         self._factory = serial_factory
         self._ser = None
-        self._step = "connect"
-        self.identity: str | None = None
-        self.settings: dict[str, Any] = {}
 
     # -- plumbing -------------------------------------------------------------------------
-    def fail(self, detail: str) -> None:
-        raise InstrumentError(f"{self.name}: {self._step}: {detail}")
-
-    @contextmanager
-    def step(self, name: str):
-        """Name the step for error messages; serial errors become InstrumentError."""
-        previous, self._step = self._step, name
-        try:
-            yield
-        except InstrumentError:
-            raise
-        except serial.SerialTimeoutException:
-            raise InstrumentError(
-                f"{self.name}: {name}: write to {self.options.port} timed out "
-                f"(handshake lines? rtscts={self.options.rtscts})") from None
-        except PORT_ERRORS as exc:
-            what = (f"cannot open serial port {self.options.port}" if name == "connect"
-                    else f"serial port {self.options.port} failed (disconnected?)")
-            raise InstrumentError(f"{self.name}: {name}: {what}: {_one_line(exc)}") from None
-        finally:
-            self._step = previous
+    def _transport_error(self, exc: BaseException, step: str) -> InstrumentError | None:
+        o = self.options
+        if isinstance(exc, serial.SerialTimeoutException):
+            return InstrumentError(
+                f"{self.name}: {step}: write to {o.port} timed out (handshake lines? rtscts={o.rtscts})")
+        if isinstance(exc, PORT_ERRORS):
+            what = (f"cannot open serial port {o.port}" if step == "connect"
+                    else f"serial port {o.port} failed (disconnected?)")
+            return InstrumentError(f"{self.name}: {step}: {what}: {one_line(exc)}")
+        return None
 
     def open(self) -> "DS340":
         o = self.options
@@ -158,19 +137,10 @@ class DS340:
             self._ser.reset_input_buffer()
         return self
 
-    def close(self) -> None:
+    def _close_transport(self) -> None:
         if self._ser is not None:
-            try:
-                self._ser.close()
-            except Exception:  # noqa: BLE001 - closing a dead port must not mask the real error
-                pass
-            self._ser = None
-
-    def __enter__(self) -> "DS340":
-        return self.open()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+            ser, self._ser = self._ser, None
+            ser.close()
 
     def write(self, command: str) -> None:
         """Send one command line."""
@@ -193,43 +163,19 @@ class DS340:
         if not data.endswith(term):
             term_name = _TERMINATORS[o.read_termination]
             if data:
-                self.fail(f"incomplete reply {_show(data)} to '{what}' (no {term_name} within {limit:g} s)")
+                self.fail(f"incomplete reply {show(data)} to '{what}' (no {term_name} within {limit:g} s)")
             self.fail(f"no reply to '{what}' within {limit:g} s on {o.port} "
                       f"(cable, power, baud rate {o.baudrate}, framing {o.bytesize}{o.parity}{o.stopbits}?)")
-        text = data.decode("ascii", errors="replace").strip("\r\n ")
-        if any(not (32 <= ord(c) < 127) for c in text):
-            self.fail(f"garbage reply {_show(data)} to '{what}' (baud rate or framing mismatch?)")
-        return text
-
-    def esr(self) -> int:
-        """Read (and so clear) the standard event status register."""
-        reply = self.query("*ESR?")
-        try:
-            value = int(reply)
-        except ValueError:
-            value = -1
-        if not 0 <= value <= 255:
-            self.fail(f"garbage reply {reply!r} to '*ESR?' (expected 0..255)")
-        return value
-
-    def command(self, command: str) -> None:
-        """Send a command and check ``*ESR?``; a set error bit names the command."""
-        self.write(command)
-        value = self.esr()
-        if value & ESR_ERROR_MASK:
-            self.fail(f"'{command}' rejected: *ESR? = {value} ({describe_esr(value)})")
+        return self.ascii_reply(data, what, " (baud rate or framing mismatch?)")
 
     # -- instrument operations ------------------------------------------------------------
     def identify(self) -> str:
         """``*IDN?`` and check the model; clears the status registers."""
         o = self.options
         with self.step("identify"):
-            reply = self.query("*IDN?")
-            fields = [f.strip() for f in reply.split(",")]
-            if len(fields) < 2 or (o.expect_model and o.expect_model.upper() not in fields[1].upper()):
-                self.fail(f"unexpected *IDN? reply {reply[:80]!r} (expected "
-                          f"'StanfordResearchSystems,{o.expect_model or '<model>'},...'; wrong port or baud rate?)")
-            self.identity = reply
+            reply = self.check_identity(
+                self.query("*IDN?"), o.expect_model, f"StanfordResearchSystems,{o.expect_model or '<model>'},..."
+            )
             if o.reset:
                 self.write("*RST")
             self.write("*CLS")
@@ -278,7 +224,7 @@ class DS340:
             for cmd in ("FUNC 5", f"FSMP {sample_rate:.10g}", f"AMPL {o.amplitude_vpp:.6g}VP",
                         f"OFFS {o.offset:.6g}", "MTYP 5", f"BCNT {o.burst_count}", "TSRC 0", "MENA 1"):
                 self.command(cmd)
-            actual = self._float_query("FSMP?")
+            actual = self.float_query("FSMP?")
             ampl = self.query("AMPL?")
             if not ampl.upper().endswith("VP"):
                 self.fail(f"AMPL? reply {ampl!r} is not in VP (arbitrary waveforms need Vpp)")
@@ -293,22 +239,3 @@ class DS340:
         """Fire one burst (``*TRG``, needs TSRC 0)."""
         with self.step("trigger"):
             self.command("*TRG")
-
-    def _float_query(self, command: str) -> float:
-        reply = self.query(command)
-        try:
-            value = float(reply)
-        except ValueError:
-            value = float("nan")
-        if not np.isfinite(value):
-            self.fail(f"garbage reply {reply!r} to '{command}' (expected a number)")
-        return value
-
-
-def _show(data: bytes) -> str:
-    return repr(data[:60]) + ("..." if len(data) > 60 else "")
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text or type(exc).__name__

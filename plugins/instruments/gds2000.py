@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 import struct
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -37,6 +36,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.errors import InstrumentError
+
+from .common import Ieee4882Instrument, one_line
 
 DT_MIN, DT_MAX = 1e-10, 1e2
 """Plausible sample interval [s] when decoding the block's float."""
@@ -48,7 +49,6 @@ TRIGGER_SOURCE = {"ch1": 0, "ch2": 1, "ext": 4}
 SLOPE = {"rising": 0, "falling": 1}
 TRIGGER_MODE = {"normal": 2, "single": 3}
 RECORD_LENGTH = {"short": 0, "long": 1}
-ESR_ERROR_MASK = 0x3C  # query, device, execution and command error bits
 
 
 class ChannelOptions(BaseModel):
@@ -141,48 +141,34 @@ def block_bytes(dt: float, channel: int, raw: np.ndarray, order: str = "big") ->
     return b"#" + str(len(length)).encode() + length.encode() + body
 
 
-class GDS2000:
+class GDS2000(Ieee4882Instrument):
     """Driver; use as a context manager or call :meth:`open` / :meth:`close`.
 
     ``resource_manager`` may be given (tests pass a pyvisa-sim manager).
     """
 
     def __init__(self, options: GDS2000Options, resource_manager=None):
-        self.options = options
+        super().__init__(options)
         self.name = options.name
         self._rm = resource_manager
         self._res = None
-        self._step = "connect"
-        self.identity: str | None = None
-        self.settings: dict[str, Any] = {}
 
     # -- plumbing -------------------------------------------------------------------------
-    def fail(self, detail: str) -> None:
-        raise InstrumentError(f"{self.name}: {self._step}: {detail}")
-
-    @contextmanager
-    def step(self, name: str):
+    def _transport_error(self, exc: BaseException, step: str) -> InstrumentError | None:
         import pyvisa
 
         from .ds340 import PORT_ERRORS
 
-        previous, self._step = self._step, name
-        try:
-            yield
-        except InstrumentError:
-            raise
-        except pyvisa.errors.VisaIOError as exc:
+        o = self.options
+        if isinstance(exc, pyvisa.errors.VisaIOError):
             if exc.error_code == pyvisa.constants.StatusCode.error_timeout:
-                raise InstrumentError(f"{self.name}: {name}: no reply within {self.options.timeout:g} s "
-                                      f"on {self.options.resource}") from None
-            raise InstrumentError(f"{self.name}: {name}: VISA error {exc.abbreviation} on "
-                                  f"{self.options.resource}") from None
-        except (pyvisa.errors.Error, *PORT_ERRORS) as exc:
-            what = (f"cannot open {self.options.resource}" if name == "connect"
-                    else f"connection to {self.options.resource} failed (disconnected?)")
-            raise InstrumentError(f"{self.name}: {name}: {what}: {_one_line(exc)}") from None
-        finally:
-            self._step = previous
+                return InstrumentError(f"{self.name}: {step}: no reply within {o.timeout:g} s on {o.resource}")
+            return InstrumentError(f"{self.name}: {step}: VISA error {exc.abbreviation} on {o.resource}")
+        if isinstance(exc, (pyvisa.errors.Error, *PORT_ERRORS)):
+            what = (f"cannot open {o.resource}" if step == "connect"
+                    else f"connection to {o.resource} failed (disconnected?)")
+            return InstrumentError(f"{self.name}: {step}: {what}: {one_line(exc)}")
+        return None
 
     def open(self) -> "GDS2000":
         import pyvisa
@@ -196,73 +182,28 @@ class GDS2000:
                     o.resource, read_termination="\n", write_termination="\n", timeout=int(o.timeout * 1000))
             except (ValueError, LookupError) as exc:
                 hint = " (install pyvisa-py or set visa_library)" if "VISA" in str(exc) else ""
-                self.fail(f"cannot open {o.resource}: {_one_line(exc)}{hint}")
+                self.fail(f"cannot open {o.resource}: {one_line(exc)}{hint}")
             if o.resource.upper().startswith("ASRL") and hasattr(self._res, "baud_rate"):
                 self._res.baud_rate = o.baud_rate
         return self
 
-    def close(self) -> None:
+    def _close_transport(self) -> None:
         if self._res is not None:
-            try:
-                self._res.close()
-            except Exception:  # noqa: BLE001 - closing a dead port must not mask the real error
-                pass
-            self._res = None
-
-    def __enter__(self) -> "GDS2000":
-        return self.open()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+            res, self._res = self._res, None
+            res.close()
 
     def write(self, command: str) -> None:
         self._res.write(command)
 
     def query(self, command: str) -> str:
         self._res.write(command)
-        data = self._res.read_raw()
-        text = data.decode("ascii", errors="replace").strip("\r\n ")
-        if any(not (32 <= ord(c) < 127) for c in text):
-            self.fail(f"garbage reply {data[:60]!r} to '{command}'")
-        return text
-
-    def float_query(self, command: str) -> float:
-        reply = self.query(command)
-        try:
-            value = float(reply)
-        except ValueError:
-            value = float("nan")
-        if not math.isfinite(value):
-            self.fail(f"garbage reply {reply!r} to '{command}' (expected a number)")
-        return value
-
-    def esr(self) -> int:
-        reply = self.query("*ESR?")
-        try:
-            value = int(reply)
-        except ValueError:
-            value = -1
-        if not 0 <= value <= 255:
-            self.fail(f"garbage reply {reply!r} to '*ESR?' (expected 0..255)")
-        return value
-
-    def command(self, command: str) -> None:
-        """Send a setting and check ``*ESR?``; an error bit names the command."""
-        self.write(command)
-        value = self.esr()
-        if value & ESR_ERROR_MASK:
-            self.fail(f"'{command}' rejected: *ESR? = {value}")
+        return self.ascii_reply(self._res.read_raw(), command)
 
     # -- instrument operations ------------------------------------------------------------
     def identify(self) -> str:
         o = self.options
         with self.step("identify"):
-            reply = self.query("*IDN?")
-            fields = [f.strip() for f in reply.split(",")]
-            if len(fields) < 2 or (o.expect_model and o.expect_model.upper() not in fields[1].upper()):
-                self.fail(f"unexpected *IDN? reply {reply[:80]!r} (expected 'GW,{o.expect_model or '<model>'}...'; "
-                          f"wrong port?)")
-            self.identity = reply
+            reply = self.check_identity(self.query("*IDN?"), o.expect_model, f"GW,{o.expect_model or '<model>'},...")
             self.write("*CLS")
             self.esr()
         return reply
@@ -394,8 +335,3 @@ class GDS2000:
         if byte != b"\n":
             self.fail(f"unexpected byte {byte!r} after the block (expected LF or nothing)")
         return True
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text or type(exc).__name__
