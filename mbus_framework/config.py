@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError, field_validator
 
 from .errors import ConfigError
 from .suggest import did_you_mean
@@ -59,6 +59,11 @@ class PluginRef(_Strict):
     name: str
     options: dict[str, Any] = Field(default_factory=dict)
 
+    @field_validator("options", mode="before")
+    @classmethod
+    def _empty_means_none(cls, value):
+        return {} if value is None else value  # `options:` with every option commented out
+
 
 class CompensatorRef(PluginRef):
     """``compensator``: optional; ``name`` defaults to ``none``."""
@@ -77,6 +82,11 @@ class ModelConfig(PluginRef):
 
     initial: dict[str, float] | None = Field(None, description="initial parameters (or properties)")
     fixed: dict[str, float] = Field(default_factory=dict, description="parameters held at these values")
+
+    @field_validator("fixed", mode="before")
+    @classmethod
+    def _empty_fixed(cls, value):
+        return {} if value is None else value
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold between samples")
 
 

@@ -40,7 +40,10 @@ class MbusPluginManager(pluggy.PluginManager):
         try:
             self.register(plugin, name=name)
         except Exception as exc:  # noqa: BLE001 - a third-party plugin may raise anything
-            self.broken.append(BrokenPlugin(name, source, f"{type(exc).__name__}: {exc}"))
+            # pluggy may have registered the name and the hooks checked before the bad one.
+            if self.has_plugin(name):
+                self.unregister(name=name)
+            self.broken.append(BrokenPlugin(name, source, one_line_error(exc)))
             return
         self.sources[name] = source
 
@@ -54,9 +57,14 @@ class MbusPluginManager(pluggy.PluginManager):
             try:
                 plugin = ep.load()
             except Exception as exc:  # noqa: BLE001
-                self.broken.append(BrokenPlugin(ep.name, source, f"{type(exc).__name__}: {exc}"))
+                self.broken.append(BrokenPlugin(ep.name, source, one_line_error(exc)))
                 continue
             self.register_plugin(plugin, ep.name, source)
+
+
+def one_line_error(exc: BaseException) -> str:
+    """``Type: message`` folded onto one line (pluggy's validation errors span several)."""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
 
 
 def _entry_points(group: str) -> Iterable[metadata.EntryPoint]:

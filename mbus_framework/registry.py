@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 from .errors import PluginError
 from .hookspecs import HOOKS_BY_KIND, SPEC_BY_KIND, PluginSpec
-from .plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager
+from .plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager, one_line_error
 from .suggest import choices_text, did_you_mean
 
 KIND_BASES = {
@@ -46,7 +46,7 @@ class Registry:
                     for spec in specs:
                         _check_spec(spec, kind, base)
                 except Exception as exc:  # noqa: BLE001 - report and skip the broken plugin
-                    reg.broken.append(BrokenPlugin(plugin_name, source, f"{hook_name}: {type(exc).__name__}: {exc}"))
+                    reg.broken.append(BrokenPlugin(plugin_name, source, f"{hook_name}: {one_line_error(exc)}"))
                     continue
                 for spec in specs:
                     clash = reg.entries[kind].get(spec.name)

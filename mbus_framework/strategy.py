@@ -239,6 +239,7 @@ def search(
         progress.start("global search (starts)", total=len(starts))
     best: LocalResult | None = None
     confirmations = 0
+    floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
     for k, start in enumerate(starts):
         entry = {"index": k, "start": dict(zip(names, map(float, start)))}
         if k > 0 and options.time_scale:
@@ -261,11 +262,11 @@ def search(
         res.trace = path + _stage_trace(res, "full band")
         entry.update(end=dict(zip(names, map(float, res.theta))), cost=res.cost)
         report.starts.append(entry)
-        if best is None or res.cost < best.cost * (1 - 1e-9):
-            same = best is not None and _same_minimum(best, res)
+        if best is None or res.cost < best.cost * (1 - 1e-9) - floor:
+            same = best is not None and _same_minimum(best, res, floor)
             best, report.winner = res, k
             confirmations = 2 if same else 1
-        elif _same_minimum(best, res):
+        elif _same_minimum(best, res, floor):
             confirmations += 1
         entry["residual_autocorrelation"] = res_white = residual_whiteness(problem, res.theta)
         if progress:
@@ -318,9 +319,11 @@ def residual_whiteness(problem: FitProblem, theta: np.ndarray, lags: int = 10) -
     return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 
 
-def _same_minimum(a: LocalResult, b: LocalResult, rtol: float = 1e-3) -> bool:
-    """Two local results are the same minimum when costs and parameters agree to ``rtol``."""
+def _same_minimum(a: LocalResult, b: LocalResult, floor: float = 0.0, rtol: float = 1e-3) -> bool:
+    """Two local results are the same minimum when costs and parameters agree to ``rtol``.
+
+    ``floor`` is a cost below which differences are round-off (noise-free data)."""
     if not (np.isfinite(a.cost) and np.isfinite(b.cost)):
         return False
-    cost_ok = abs(a.cost - b.cost) <= rtol * max(a.cost, b.cost, 1e-300)
+    cost_ok = abs(a.cost - b.cost) <= rtol * max(a.cost, b.cost) + floor
     return bool(cost_ok and np.allclose(a.theta, b.theta, rtol=10 * rtol, atol=0))

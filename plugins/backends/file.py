@@ -113,7 +113,7 @@ def check_record(path, t, u, y) -> Measurement:
     for name, a in (("t", t), ("u", u), ("y", y)):
         bad = np.flatnonzero(~np.isfinite(a))
         if bad.size:
-            raise DataError(f"{path}: column {name} has {bad.size} non-finite value(s) (first at row {bad[0] + 1})")
+            raise DataError(f"{path}: column {name} has {bad.size} non-finite or non-numeric value(s) (first at row {bad[0] + 1})")
     steps = np.diff(t)
     dt = float(np.median(steps))
     if dt <= 0:
