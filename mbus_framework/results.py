@@ -8,6 +8,7 @@ import numpy as np
 
 from . import __version__
 from .nuisance import DELAY, GAIN
+from .strategy import at_box_edge
 from .uncertainty import from_jacobian, property_covariance
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -79,6 +80,7 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         result["uncertainty"] = {
             "method": "linearised: s^2 (J^T J)^-1, s^2 = 2 cost / (N - p)",
             "residual_std": unc.residual_std,
+            "condition": unc.condition,
             "standard_errors": dict(zip(names, unc.standard_errors)),
             "relative_standard_errors": dict(zip(names, unc.relative_standard_errors(free_values))),
             "ci95": {n: list(b) for n, b in zip(names, ci)},
@@ -130,9 +132,20 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
             "the global minimum is not confirmed: no start left white residuals and no two starts agreed "
             "(model mismatch, coloured noise, or a multimodal cost); consider more starts or another model"
         )
+    edge = at_box_edge(strategy, result["parameters"])
+    if edge:
+        out.append(
+            f"{_join(edge)} ended on the edge of the search box (the initial value x/÷ the strategy's "
+            f"search_box): the data do not pin {'it' if len(edge) == 1 else 'them'} down"
+        )
     unc = result.get("uncertainty")
     if not unc:
         return out
+    if unc.get("condition", 1.0) < 1e-8:
+        out.append(
+            f"the Jacobian is nearly rank deficient (singular value ratio {unc['condition']:.1e}): some "
+            f"combination of parameters is not determined by this record"
+        )
     names = unc["correlation"]["names"]
     corr = np.asarray(unc["correlation"]["matrix"])
     for group, worst in correlated_groups(names, corr, limits.max_correlation):

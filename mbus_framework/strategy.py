@@ -22,6 +22,7 @@ Everything tried is reported (``SearchReport``), so result.json says what won.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -51,6 +52,9 @@ class StrategyOptions(BaseModel):
     confirm: int = Field(2, ge=1, description="stop when this many starts reach the best minimum")
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each continuation stage")
     seed: int = Field(0, description="seed of the multi-start design")
+    search_box: float = Field(
+        1e3, gt=1, description="log-scale estimates stay within x/÷ this factor of the initial values"
+    )
     accept_white: bool = Field(
         True,
         description="accept a minimum at once when its residuals are white (no structure left to fit)",
@@ -95,6 +99,7 @@ class SearchReport:
     winner: int | None = None
     confirmed_by: int = 0
     accepted_because: str = ""
+    box: dict | None = None
     wall_time_s: float = 0.0
 
     def as_dict(self) -> dict:
@@ -212,6 +217,8 @@ def search(
         theta0, source = problem.full(np.asarray(guess, float)[problem.free], guess), "model.initial_guess"
     theta0 = np.clip(theta0, problem.lower, problem.upper)
     report = SearchReport(source, dict(zip(names, map(float, theta0))))
+    problem = boxed(problem, theta0, options.search_box)
+    report.box = {"lower": dict(zip(names, map(float, problem.lower))), "upper": dict(zip(names, map(float, problem.upper)))}
 
     f_sig = signal_bandwidth(problem.y, problem.dt)
     report.signal_bandwidth_hz = f_sig
@@ -293,6 +300,32 @@ def search(
         rec["iteration"] = i
     report.wall_time_s = time.perf_counter() - t0
     return final, report, nfev, njev
+
+
+def boxed(problem: FitProblem, theta0: np.ndarray, factor: float) -> FitProblem:
+    """The problem with log-scale parameters confined to theta0 x/÷ factor (within its bounds).
+
+    A parameter the data barely see can otherwise run away by many decades during a local
+    solve and drag the fit into a remote, flat region."""
+    lower, upper = problem.lower.copy(), problem.upper.copy()
+    for i, p in enumerate(problem.parameters):
+        if p.log_scale and theta0[i] > 0:
+            lower[i] = max(lower[i], theta0[i] / factor)
+            upper[i] = min(upper[i], theta0[i] * factor)
+    return dataclasses.replace(problem, lower=lower, upper=upper)
+
+
+def at_box_edge(report: dict, theta: dict[str, float], rtol: float = 1e-3) -> list[str]:
+    """Names of parameters that ended on the edge of the search box."""
+    box = report.get("box") or {}
+    out = []
+    for name, value in theta.items():
+        lo, hi = box.get("lower", {}).get(name), box.get("upper", {}).get(name)
+        for edge in (lo, hi):
+            if edge not in (None, 0.0) and np.isfinite(edge) and abs(value - edge) <= rtol * abs(edge):
+                out.append(name)
+                break
+    return out
 
 
 def _stage_trace(res: LocalResult, stage: str) -> list[dict]:

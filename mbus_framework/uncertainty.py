@@ -4,6 +4,10 @@ With residual variance s^2 = 2 cost / (N - p) and J = d yhat / d theta (free col
 
     Cov(theta) = s^2 (J^T J)^-1,   SE_i = sqrt(Cov_ii),   corr_ij = Cov_ij / (SE_i SE_j)
 
+(J^T J)^-1 comes from an SVD of the column-scaled J with no cut-off: a direction the data
+cannot see gives a huge (or infinite) variance instead of being dropped, so an unidentifiable
+parameter never looks precise. ``condition`` is the smallest/largest singular value ratio.
+
 95 % intervals use Student's t with N - p degrees of freedom. Property intervals follow by
 the delta method, Cov(P) = G Cov(theta) G^T with G = dP/dtheta (central differences).
 """
@@ -23,6 +27,7 @@ class Uncertainty:
     correlation: np.ndarray
     dof: int
     residual_std: float
+    condition: float = 1.0
 
     def relative_standard_errors(self, values: np.ndarray) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -39,17 +44,38 @@ def from_jacobian(names: list[str], jacobian: np.ndarray, cost: float, scale: fl
     n, p = J.shape
     dof = max(n - p, 1)
     s2 = scale if scale is not None else 2.0 * cost / dof
-    # Column scaling keeps the inversion well conditioned for parameters of mixed magnitude.
-    norms = np.linalg.norm(J, axis=0)
-    norms[norms == 0] = 1.0
-    Js = J / norms
-    cov_s = s2 * np.linalg.pinv(Js.T @ Js)
-    cov = cov_s / np.outer(norms, norms)
+    cov, condition = scaled_inverse_gram(J)
+    cov = s2 * cov
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = cov / np.outer(se, se)
     corr[~np.isfinite(corr)] = 0.0
-    return Uncertainty(list(names), cov, se, corr, dof, float(np.sqrt(s2)))
+    np.fill_diagonal(corr, 1.0)
+    return Uncertainty(list(names), cov, se, corr, dof, float(np.sqrt(s2)), condition)
+
+
+def scaled_inverse_gram(J: np.ndarray) -> tuple[np.ndarray, float]:
+    """(J^T J)^-1 by an SVD of J with unit-norm columns, no truncation; and the condition
+    (smallest/largest singular value). A zero singular value gives infinite variances for
+    the parameters in that direction."""
+    J = np.asarray(J, dtype=float)
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    _, sv, Vt = np.linalg.svd(J / norms, full_matrices=False)
+    V = Vt.T
+    # Singular values at round-off level are exact zeros: their directions are unseen.
+    null = sv <= max(J.shape) * np.finfo(float).eps * (sv.max() if sv.size else 0.0)
+    live = ~null
+    cov = (V[:, live] / sv[live] ** 2) @ V[:, live].T
+    if null.any():
+        # parameters with a real (not round-off) component along an unseen direction
+        along = (np.abs(V[:, null]) > 1e-8).any(axis=1)
+        cov[along, :] = np.inf
+        cov[:, along] = np.inf
+        cov[np.ix_(along, along)] = np.where(np.eye(along.sum(), dtype=bool), np.inf, np.nan)
+    cov = cov / np.outer(norms, norms)
+    condition = float(sv.min() / sv.max()) if sv.size and sv.max() > 0 else 0.0
+    return cov, condition
 
 
 def property_covariance(to_properties, theta: np.ndarray, free: np.ndarray, cov_free: np.ndarray):

@@ -84,13 +84,20 @@ def test_monte_carlo_coverage_of_linear_regression():
     assert np.all(np.abs(coverage - 0.95) < 0.015), coverage  # binomial SE 0.5 %
 
 
-def test_rank_deficient_jacobian_does_not_crash():
+def test_rank_deficient_jacobian_reports_unidentifiable_directions():
+    """Directions the data cannot see get huge or infinite standard errors, never small ones
+    (a pseudo-inverse would silently drop them and report the rest as precise)."""
     J = np.column_stack([np.ones(10), np.ones(10), np.arange(10.0)])
     unc = from_jacobian(["a", "b", "c"], J, 1.0)
-    assert np.all(np.isfinite(unc.standard_errors))
+    assert np.all(unc.standard_errors[:2] > 1e6)  # a and b only enter as a + b
+    assert unc.condition < 1e-12
+    full_rank = from_jacobian(["ab", "c"], np.column_stack([np.ones(10), np.arange(10.0)]), 1.0, scale=0.1)
+    same_scale = from_jacobian(["a", "b", "c"], J, 1.0, scale=0.1)
+    assert same_scale.standard_errors[2] == pytest.approx(full_rank.standard_errors[1], rel=1e-9)
     zero = np.column_stack([np.ones(10), np.zeros(10)])
     unc = from_jacobian(["a", "b"], zero, 1.0)
-    assert unc.standard_errors[1] == 0.0 and np.all(np.isfinite(unc.correlation))
+    assert np.isinf(unc.standard_errors[1]) and np.isfinite(unc.standard_errors[0])
+    assert np.all(np.isfinite(unc.correlation))
 
 
 def test_kelvin_voigt_standard_errors_match_monte_carlo():

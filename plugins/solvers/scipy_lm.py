@@ -85,8 +85,9 @@ class ScipyLM(Solver):
             Jz = J[:, free] * coords.dtheta_dz(theta)
             if band:
                 yhat, Jz = band(yhat), band(Jz)
-            r = yhat - y
-            trace.append({"iteration": len(trace), "cost": 0.5 * float(r @ r), "theta": theta.tolist()})
+            with np.errstate(over="ignore", invalid="ignore"):
+                r = yhat - y
+                trace.append({"iteration": len(trace), "cost": 0.5 * float(r @ r), "theta": theta.tolist()})
             if not np.all(np.isfinite(Jz)):
                 return np.zeros_like(Jz)
             return Jz
