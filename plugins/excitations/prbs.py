@@ -1,43 +1,58 @@
 """``prbs`` excitation: maximal-length pseudo-random binary sequence (Section 3.4.4).
 
-An order-n linear-feedback shift register gives a period of 2^n - 1 bits. Each bit lasts
-``bit_width`` seconds and takes the level +amplitude or -amplitude; the sequence is sampled
+An order-n linear-feedback shift register gives a period of P = 2^n - 1 bits. Each bit lasts
+``bit_width`` T_b seconds and takes the level +amplitude or -amplitude; the sequence is sampled
 at ``sample_rate`` (a bit edge that falls between samples takes effect at the next sample).
 The power spectrum follows the envelope sinc^2(f T_b) with nulls at multiples of 1/T_b; its
--3 dB bandwidth is about 0.443 / T_b (Fig. 3.7).
+-3 dB bandwidth is about 0.443 / T_b (Fig. 3.7). Over whole periods the spectrum is a line
+spectrum at multiples of 1 / (P T_b), all lines (except DC) on the envelope.
+
+``inverse_repeat: true`` plays the sequence and then its negative (period 2P bits): the even
+lines vanish, so even-order distortion of the rig (which maps s and -s to the same output)
+cannot leak onto the excited lines. ``periods`` sets the record length in whole periods
+(the first period is a transient; calibration uses the later, steady-state ones).
 """
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.signal import max_len_seq
 
-from mbus_framework.excitation import Excitation, Waveform
+from mbus_framework.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.hookspecs import ExcitationSpec, hookimpl
 
 
-class PrbsOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class PrbsOptions(ExcitationOptions):
     order: int = Field(9, ge=3, le=20, description="LFSR order n; period 2^n - 1 bits")
     bit_width: float = Field(2.5e-6, gt=0, description="duration of one bit [s]")
     amplitude: float = Field(1.0, gt=0, description="level of a bit, +-amplitude [N or V]")
     sample_rate: float = Field(6.25e6, gt=0, description="sampling rate [Hz]")
     n_samples: int | None = Field(None, ge=16, description="record length [samples]")
     duration: float | None = Field(None, gt=0, description="record length [s] (alternative to n_samples)")
+    periods: int | None = Field(
+        None, ge=1, le=1000, description="record length in whole periods (alternative to n_samples)"
+    )
+    inverse_repeat: bool = Field(False, description="follow the sequence by its negative (period 2(2^n - 1) bits)")
     shift: int = Field(0, ge=0, description="start the sequence this many bits in (a different realisation)")
+
+    @property
+    def period_bits(self) -> int:
+        """Bits in one period of the played signal: 2^n - 1, doubled with inverse_repeat."""
+        return (2**self.order - 1) * (2 if self.inverse_repeat else 1)
 
     @model_validator(mode="after")
     def _length(self):
-        if self.n_samples is None and self.duration is None:
-            self.n_samples = int(round((2**self.order - 1) * self.bit_width * self.sample_rate))
-        elif self.n_samples is None:
-            self.n_samples = int(round(self.duration * self.sample_rate))
-        elif self.duration is not None:
-            raise ValueError("give n_samples or duration, not both")
+        one_period = self.period_bits * self.bit_width * self.sample_rate
+        if self.periods is not None and (self.n_samples is not None or self.duration is not None):
+            raise ValueError("give one of n_samples, duration or periods")
+        default = int(round((self.periods or 1) * one_period))
+        self.n_samples = record_length(self.n_samples, self.duration, self.sample_rate, default)
         if self.bit_width * self.sample_rate < 1.0:
             raise ValueError(
                 f"bit_width {self.bit_width:g} s is shorter than one sample at {self.sample_rate:g} Hz"
             )
+        if self.n_samples < 16:
+            raise ValueError(f"record of {self.n_samples} samples is too short (at least 16)")
         return self
 
 
@@ -46,26 +61,36 @@ def mls_bits(order: int) -> np.ndarray:
     return max_len_seq(order)[0].astype(np.int8)
 
 
-class Prbs(Excitation):
+class Prbs(DesignedExcitation):
     """Maximal-length PRBS sampled on a uniform grid."""
 
     Options = PrbsOptions
-    summary = "maximal-length LFSR pseudo-random binary sequence"
+    summary = "maximal-length LFSR pseudo-random binary sequence (periods, inverse-repeat)"
 
-    def waveform(self) -> Waveform:
+    def signal(self, t: np.ndarray) -> np.ndarray:
         o = self.options
-        bits = mls_bits(o.order)
-        t = np.arange(o.n_samples) / o.sample_rate
-        # Bit index of each sample; the tiny offset keeps exact edges on the new bit.
-        index = (np.floor(t / o.bit_width + 1e-9).astype(np.int64) + o.shift) % bits.size
-        u = o.amplitude * (2.0 * bits[index] - 1.0)
-        info = {
+        levels = 2.0 * mls_bits(o.order) - 1.0
+        p = levels.size
+        # Bit index of each time; the tiny offset keeps exact edges on the new bit.
+        j = (np.floor(np.asarray(t) / o.bit_width + 1e-9).astype(np.int64) + o.shift) % o.period_bits
+        sign = np.where(j >= p, -1.0, 1.0) if o.inverse_repeat else 1.0
+        return o.amplitude * sign * levels[j % p]
+
+    def describe(self) -> dict:
+        o = self.options
+        period_s = o.period_bits * o.bit_width
+        return {
             "order": o.order,
-            "period_bits": int(bits.size),
+            "period_bits": int(2**o.order - 1),
             "bit_width_s": o.bit_width,
             "bandwidth_3db_hz": 0.443 / o.bit_width,
+            "first_null_hz": 1.0 / o.bit_width,
+            "inverse_repeat": o.inverse_repeat,
+            "period_s": period_s,
+            "period_samples": period_s * o.sample_rate,
+            "periods": o.n_samples / (period_s * o.sample_rate),
+            "line_spacing_hz": 1.0 / period_s,
         }
-        return Waveform(t, u, info)
 
 
 @hookimpl
