@@ -32,3 +32,11 @@ class Compensator(ABC):
         """Optional linear filter applied to model outputs (and sensitivities): a callable
         ``f(x, dt) -> x`` acting along axis 0, or None."""
         return None
+
+    def noise_filter(self):
+        """The linear map F the compensation applied to the record, hence to its noise, or None.
+
+        An object with ``__call__(x, dt)`` and ``adjoint(x, dt)`` (the transpose) along axis 0.
+        The run then reports sandwich standard errors for noise sigma F e (e white), instead
+        of the white-noise formula that would be too small."""
+        return None

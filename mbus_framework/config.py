@@ -112,6 +112,9 @@ class IdentifiabilityConfig(_Strict):
 
     max_correlation: float = Field(0.95, gt=0, le=1, description="|correlation| above this is flagged")
     max_relative_se: float = Field(0.5, gt=0, description="standard error / |estimate| above this is flagged")
+    max_residual_autocorrelation: float = Field(
+        0.2, gt=0, description="mean |autocorrelation| of residuals (lags 1-10) above this is flagged as misfit"
+    )
 
 
 class OutputConfig(_Strict):
@@ -135,6 +138,9 @@ class RunConfig(_Strict):
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
     calibration: dict[str, Any] | None = Field(
         None, description="makes the run a transducer calibration (see mbus_framework.calibration)"
+    )
+    design: dict[str, Any] | None = Field(
+        None, description="options of --design-excitation (see mbus_framework.design)"
     )
     output: OutputConfig = Field(default_factory=OutputConfig)
 

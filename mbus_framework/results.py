@@ -18,7 +18,17 @@ if TYPE_CHECKING:  # pragma: no cover
     from .solver import FitProblem, FitResult
 
 
-def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: "FitResult", waveform: "Waveform") -> dict[str, Any]:
+def build_result(
+    c: "Components",
+    m: "Measurement",
+    problem: "FitProblem",
+    fit: "FitResult",
+    waveform: "Waveform",
+    compensation: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The result.json document; ``compensation`` is what the compensator reports."""
+    noise_filter = c.compensator.noise_filter()
+    comp_sigma = (compensation or {}).get("noise_std")
     model = c.model
     theta = fit.theta
     n_model = problem.n_model
@@ -67,7 +77,14 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
     }
     if fit.jacobian is not None and fit.free is not None and fit.free.any():
         names = [n for n, f in zip(fit.names, fit.free) if f]
-        unc = from_jacobian(names, fit.jacobian, fit.cost)
+        unc = from_jacobian(
+            names,
+            fit.jacobian,
+            fit.cost,
+            scale=comp_sigma**2 if (noise_filter is not None and comp_sigma) else None,
+            noise_filter=noise_filter,
+            dt=problem.dt,
+        )
         free_values = theta[fit.free]
         ci = unc.intervals(free_values)
         model_free = fit.free[:n_model]
@@ -78,7 +95,11 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         q = ci[:, 1] - free_values  # t-quantile * SE, same for properties
         qfac = (q / unc.standard_errors)[0] if unc.standard_errors[0] > 0 else 1.96
         result["uncertainty"] = {
-            "method": "linearised: s^2 (J^T J)^-1, s^2 = 2 cost / (N - p)",
+            "method": (
+                "linearised: s^2 (J^T J)^-1, s^2 = 2 cost / (N - p)"
+                if noise_filter is None
+                else "linearised sandwich for compensated (filtered) noise: s^2 A (F^T J)^T (F^T J) A, A = (J^T J)^-1"
+            ),
             "residual_std": unc.residual_std,
             "condition": unc.condition,
             "standard_errors": dict(zip(names, unc.standard_errors)),
@@ -98,12 +119,33 @@ def build_result(c: "Components", m: "Measurement", problem: "FitProblem", fit: 
         result["truth_properties"] = tprops
         result["error_percent"] = {n: 100.0 * (fit.parameters[n] / truth[n] - 1.0) for n in truth if truth[n] != 0}
         if "uncertainty" in result and m.meta.get("noise_std"):
-            crb = cramer_rao(problem, np.array([truth[n] for n in problem.names]), float(m.meta["noise_std"]))
+            crb = cramer_rao(
+                problem, np.array([truth[n] for n in problem.names]), float(m.meta["noise_std"]), noise_filter
+            )
             result["uncertainty"]["cramer_rao"] = crb
     elif m.meta.get("true_properties"):
         result["truth_properties"] = m.meta["true_properties"]
+    if compensation:
+        result["compensation"] = compensation
+    whiteness = residual_autocorrelation(fit.residuals)
+    result["fit"]["residual_autocorrelation"] = whiteness
     result["warnings"] = identifiability_warnings(result, c.config.identifiability, fit)
+    if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
+        result["warnings"].insert(
+            0,
+            f"the residuals are not white (mean |autocorrelation| {whiteness:.2f}): the model does not explain "
+            f"the data (model mismatch, transducer dynamics or a local minimum); the estimates are biased",
+        )
     return result
+
+
+def residual_autocorrelation(r: np.ndarray, lags: int = 10) -> float:
+    """Mean |normalised autocorrelation| of residuals at lags 1..lags (about 0.8/sqrt(N) if white)."""
+    r = np.asarray(r, dtype=float) - np.mean(r)
+    denom = float(r @ r)
+    if denom <= 0 or not np.isfinite(denom):
+        return 0.0
+    return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 
 
 def _derived(model, theta: np.ndarray) -> dict[str, float]:
@@ -112,11 +154,12 @@ def _derived(model, theta: np.ndarray) -> dict[str, float]:
     return dict(derived(theta)) if callable(derived) else {}
 
 
-def cramer_rao(problem: "FitProblem", theta_true: np.ndarray, noise_std: float) -> dict[str, float]:
-    """Cramer-Rao standard errors at the truth: sqrt(diag(sigma^2 (J^T J)^-1)), sigma known."""
+def cramer_rao(problem: "FitProblem", theta_true: np.ndarray, noise_std: float, noise_filter=None) -> dict[str, float]:
+    """Standard errors at the truth with the known noise std: sqrt(diag(sigma^2 (J^T J)^-1)),
+    the Cramer-Rao bound; with a compensation filter, the sandwich of this estimator."""
     _, J = problem.predict_with_jacobian(theta_true)
     names = [n for n, f in zip(problem.names, problem.free) if f]
-    unc = from_jacobian(names, J[:, problem.free], cost=0.0, scale=noise_std**2)
+    unc = from_jacobian(names, J[:, problem.free], 0.0, noise_std**2, noise_filter, problem.dt)
     return dict(zip(names, map(float, unc.standard_errors)))
 
 

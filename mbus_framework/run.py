@@ -188,7 +188,7 @@ def execute(
         fit = c.solver.solve(problem, progress)
     except np.linalg.LinAlgError as exc:
         raise EstimationError(f"{source}: estimation failed: {exc}") from None
-    result = build_result(c, measurement, problem, fit, waveform)
+    result = build_result(c, measurement, problem, fit, waveform, compensated.meta.get("compensation"))
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
         result["files"]["trace"] = "trace.csv"

@@ -38,20 +38,47 @@ class Uncertainty:
         return np.column_stack([values - q * self.standard_errors, values + q * self.standard_errors])
 
 
-def from_jacobian(names: list[str], jacobian: np.ndarray, cost: float, scale: float | None = None) -> Uncertainty:
-    """Linearised covariance of the free parameters (``scale`` = known noise variance, else s^2)."""
+def from_jacobian(
+    names: list[str],
+    jacobian: np.ndarray,
+    cost: float,
+    scale: float | None = None,
+    noise_filter=None,
+    dt: float | None = None,
+) -> Uncertainty:
+    """Linearised covariance of the free parameters.
+
+    ``scale``: the known variance of the white noise, else estimated from the residuals.
+    ``noise_filter``: the linear map F a compensator applied to the record (its noise is
+    sigma F e, e white); then Cov = sigma^2 A (F^T J)^T (F^T J) A, A = (J^T J)^-1 (sandwich),
+    and sigma^2 = ||r||^2 / (tr(F^T F) - p) when not known.
+    """
     J = np.asarray(jacobian, dtype=float)
     n, p = J.shape
     dof = max(n - p, 1)
-    s2 = scale if scale is not None else 2.0 * cost / dof
-    cov, condition = scaled_inverse_gram(J)
-    cov = s2 * cov
+    A, condition = scaled_inverse_gram(J)
+    if noise_filter is None:
+        s2 = scale if scale is not None else 2.0 * cost / dof
+        cov = s2 * A
+    else:
+        s2 = scale if scale is not None else 2.0 * cost / max(filter_power(noise_filter, n, dt) - p, 1.0)
+        FtJ = noise_filter.adjoint(J, dt)
+        with np.errstate(invalid="ignore"):
+            cov = s2 * A @ (FtJ.T @ FtJ) @ A
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = cov / np.outer(se, se)
     corr[~np.isfinite(corr)] = 0.0
     np.fill_diagonal(corr, 1.0)
     return Uncertainty(list(names), cov, se, corr, dof, float(np.sqrt(s2)), condition)
+
+
+def filter_power(noise_filter, n: int, dt: float, probes: int = 4) -> float:
+    """tr(F^T F) of a linear filter on n samples (Hutchinson: E||F z||^2 over z ~ N(0, I))."""
+    rng = np.random.default_rng(12345)
+    z = rng.standard_normal((n, probes))
+    Fz = noise_filter(z, dt)
+    return float(np.sum(Fz**2) / probes)
 
 
 def scaled_inverse_gram(J: np.ndarray) -> tuple[np.ndarray, float]:
