@@ -47,9 +47,14 @@ class StrategyOptions(BaseModel):
         description="low-pass cut-offs of the continuation, as fractions of the signal bandwidth; "
         "the full band always follows",
     )
-    n_starts: int = Field(8, ge=1, description="maximum number of starts (the first is the physics/user start)")
+    n_starts: int = Field(12, ge=1, description="maximum number of starts (the first is the physics/user start)")
     spread: float = Field(4.0, ge=1, description="extra starts are drawn log-uniformly within x/÷ spread")
-    confirm: int = Field(2, ge=1, description="stop when this many starts reach the best minimum")
+    confirm: int = Field(
+        0,
+        ge=0,
+        description="also stop when this many starts reach the best minimum although its residuals are "
+        "not white (0: never; agreeing starts can share a local minimum)",
+    )
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each continuation stage")
     seed: int = Field(0, description="seed of the multi-start design")
     search_box: float = Field(
@@ -278,7 +283,7 @@ def search(
         entry["residual_autocorrelation"] = res_white = residual_whiteness(problem, res.theta)
         if progress:
             progress.advance(1, f"best cost {best.cost:.4g}")
-        if confirmations >= options.confirm:
+        if options.confirm and confirmations >= options.confirm:
             report.accepted_because = f"{confirmations} starts reached the same minimum"
             break
         if options.accept_white and best is res and res_white < options.whiteness_threshold:
