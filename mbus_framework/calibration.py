@@ -215,8 +215,25 @@ def two_length_estimate(log_G_L: np.ndarray, log_G_nL: np.ndarray, n: float) -> 
     return np.exp(log_M), np.exp(np.asarray(log_G_L) - log_M)
 
 
+class _TransducerResponse:
+    """G_TR and its reliable band from ``f``, ``log_G_TR`` and the ``reliable`` mask."""
+
+    f: np.ndarray
+    log_G_TR: np.ndarray
+    reliable: np.ndarray
+
+    @property
+    def G_TR(self) -> np.ndarray:
+        return np.exp(self.log_G_TR)
+
+    @property
+    def reliable_band(self) -> tuple[float, float]:
+        idx = np.flatnonzero(self.reliable)
+        return (float(self.f[idx[0]]), float(self.f[idx[-1]])) if idx.size else (float("nan"), float("nan"))
+
+
 @dataclass
-class TransferEstimate:
+class TransferEstimate(_TransducerResponse):
     """Result of :func:`estimate_transfer` (all arrays over the lines f)."""
 
     f: np.ndarray
@@ -231,14 +248,6 @@ class TransferEstimate:
     delays_s: np.ndarray
     usable: np.ndarray
 
-    @property
-    def G_TR(self) -> np.ndarray:
-        return np.exp(self.log_G_TR)
-
-    @property
-    def reliable_band(self) -> tuple[float, float]:
-        idx = np.flatnonzero(self.reliable)
-        return (float(self.f[idx[0]]), float(self.f[idx[-1]])) if idx.size else (float("nan"), float("nan"))
 
     def sound_speed(self, band: tuple[float, float]) -> float:
         """Reference phase velocity c = -2 pi f / Im gamma, median over ``band`` [m/s]."""
@@ -417,7 +426,7 @@ def coloured_noise_standard_errors(
 # The calibration file
 # ---------------------------------------------------------------------------------------------
 @dataclass
-class Calibration:
+class Calibration(_TransducerResponse):
     """A saved G_TR(f): what :mod:`plugins.compensators.transfer_function` loads by path."""
 
     f: np.ndarray
@@ -429,14 +438,6 @@ class Calibration:
     meta: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
 
-    @property
-    def G_TR(self) -> np.ndarray:
-        return np.exp(self.log_G_TR)
-
-    @property
-    def reliable_band(self) -> tuple[float, float]:
-        idx = np.flatnonzero(self.reliable)
-        return float(self.f[idx[0]]), float(self.f[idx[-1]])
 
     def response(self, f: np.ndarray, band: tuple[float, float] | None = None, extend: bool = False) -> np.ndarray:
         """G_TR at frequencies f [Hz].
