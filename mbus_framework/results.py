@@ -5,6 +5,7 @@ import datetime as _dt
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy import stats
 
 from . import __version__
 from .nuisance import DELAY, GAIN
@@ -92,8 +93,7 @@ def build_result(
         cov_model = unc.covariance[np.ix_(in_model, in_model)]
         pnames, pvalues, pcov = property_covariance(model.to_properties, theta[:n_model], model_free, cov_model)
         pse = np.sqrt(np.clip(np.diag(pcov), 0, None))
-        q = ci[:, 1] - free_values  # t-quantile * SE, same for properties
-        qfac = (q / unc.standard_errors)[0] if unc.standard_errors[0] > 0 else 1.96
+        qfac = float(stats.t.ppf(0.975, unc.dof))  # the same Student-t quantile as the parameters' CIs
         result["uncertainty"] = {
             "method": (
                 "linearised: s^2 (J^T J)^-1, s^2 = 2 cost / (N - p)"
