@@ -158,8 +158,8 @@ def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOp
     r = options.time_scale_range
     scales = np.exp(np.linspace(-np.log(r), np.log(r), points))
     y = problem.y
-    best, best_c, nfev = -np.inf, 1.0, 0
     lo, hi = problem.lower, problem.upper
+    best, best_c, nfev = _explained_energy(problem, theta), 1.0, 1  # the start itself competes
     for c in scales:
         th = theta * c**e
         if np.any(th < lo) or np.any(th > hi):
@@ -288,6 +288,9 @@ def search(
             break
         if options.accept_white and best is res and res_white < options.whiteness_threshold:
             report.accepted_because = f"white residuals (mean |autocorrelation| {res_white:.3g})"
+            break
+        if best is res and res.cost <= floor:
+            report.accepted_because = "exact fit (cost at round-off level)"
             break
     else:
         report.accepted_because = f"best of {len(starts)} starts (budget spent)"

@@ -102,14 +102,14 @@ def test_noisy_estimates_agree_within_a_fraction_of_the_standard_error(case):
 # ({E_sigma: 3.585e9, eta_sigma: 148.4, E_tau: 9.064e8, eta_tau: 148.4}, n=6, L=0.03) ends at
 # k_sigma x 407: the time-scale alignment moves that start to c = 0.59.
 @pytest.mark.slow
-@settings(max_examples=10)
+@settings(max_examples=6)
 @given(case=media(max_elements=10))
 def test_noise_free_agreement_many_cases(case):
     check_noise_free(case, n_samples=2500, strategy={})
 
 
 @pytest.mark.slow
-@settings(max_examples=10)
+@settings(max_examples=6)
 @given(case=media(max_elements=10))
 def test_noisy_agreement_many_cases(case):
     check_noisy(case, n_samples=2500, strategy={}, noise=0.10)

@@ -37,9 +37,11 @@ every sample state and every collocation-point state as NLP variables (textbook 
 collocation, the intervals built with ``Function.map``); it gives the same optimum and is
 kept for checking and for small records.
 
-**Scaling.** Free parameters enter as z = ln(theta / theta_start) (``log_scale`` parameters,
-|z| <= 23) or z = theta / theta_start, so they are of order one and positivity is free; model
-bounds (and the strategy's search box) become bounds on z. States are divided by their largest
+**Scaling.** Free parameters enter as z = theta / theta_start (default) or, with
+``coordinates: log``, z = ln(theta / theta_start) for ``log_scale`` parameters (|z| <= 23), so
+they are of order one; model bounds (and the strategy's search box) become bounds on z.
+(Measured: linear coordinates end a lone local solve at the nearest local minimum, log ones
+can run off by decades, e.g. from set 2 on the first 1500 Table 3.1 samples.) States are divided by their largest
 magnitude in a simulation at the start parameters (which also balances h M before the
 stability function is evaluated, needed for accuracy: entries of h M span ~1e-7..1e4 on the
 Table 3.1 chain), the output by the record's RMS. The warm start is that simulation, so every
