@@ -9,7 +9,7 @@ from scipy import stats
 
 from . import __version__
 from .nuisance import DELAY, GAIN
-from .strategy import at_box_edge
+from .strategy import at_box_edge, residual_autocorrelation
 from .uncertainty import from_jacobian, property_covariance
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -137,15 +137,6 @@ def build_result(
             f"the data (model mismatch, transducer dynamics or a local minimum); the estimates are biased",
         )
     return result
-
-
-def residual_autocorrelation(r: np.ndarray, lags: int = 10) -> float:
-    """Mean |normalised autocorrelation| of residuals at lags 1..lags (about 0.8/sqrt(N) if white)."""
-    r = np.asarray(r, dtype=float) - np.mean(r)
-    denom = float(r @ r)
-    if denom <= 0 or not np.isfinite(denom):
-        return 0.0
-    return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 
 
 def _derived(model, theta: np.ndarray) -> dict[str, float]:

@@ -179,6 +179,32 @@ class FitResult:
     def parameters(self) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, self.theta)}
 
+    @classmethod
+    def at_estimate(cls, problem: "FitProblem", best, *, nfev: int, njev: int, wall_time_s: float,
+                    strategy: dict[str, Any], extras: dict[str, Any]) -> "FitResult":
+        """The common result for a solver's best local solve (a ``strategy.LocalResult``):
+        residuals, cost and the exact Jacobian (free columns) evaluated at the estimate."""
+        yhat, J = problem.predict_with_jacobian(best.theta)
+        residuals = problem.y - yhat
+        return cls(
+            names=problem.names,
+            theta=best.theta,
+            success=best.status > 0,
+            status=best.status,
+            message=best.message,
+            nfev=nfev,
+            njev=njev,
+            iterations=best.iterations,
+            cost=0.5 * float(residuals @ residuals),
+            wall_time_s=wall_time_s,
+            residuals=residuals,
+            jacobian=J[:, problem.free],
+            free=problem.free,
+            trace=best.trace,
+            strategy=strategy,
+            extras=extras,
+        )
+
 
 class Solver(ABC):
     """Base class of solver plugins; ``options`` is an instance of ``Options``."""

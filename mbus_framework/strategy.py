@@ -157,20 +157,14 @@ def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOp
     points = points or options.time_scale_points
     r = options.time_scale_range
     scales = np.exp(np.linspace(-np.log(r), np.log(r), points))
-    y = problem.y
     lo, hi = problem.lower, problem.upper
     best, best_c, nfev = _explained_energy(problem, theta), 1.0, 1  # the start itself competes
     for c in scales:
         th = theta * c**e
         if np.any(th < lo) or np.any(th > hi):
             continue
-        with np.errstate(over="ignore", invalid="ignore"):
-            yhat = problem.predict(th)
+        score = _explained_energy(problem, th)
         nfev += 1
-        denom = float(yhat @ yhat)
-        if not np.isfinite(denom) or denom <= 0:
-            continue
-        score = float(yhat @ y) ** 2 / denom  # explained energy; maximise
         if score > best:
             best, best_c = score, float(c)
     return theta * best_c**e, best_c, nfev
@@ -353,9 +347,14 @@ def residual_whiteness(problem: FitProblem, theta: np.ndarray, lags: int = 10) -
         r = problem.y - problem.predict(theta)
     if not np.all(np.isfinite(r)):
         return np.inf
-    r = r - r.mean()
+    return residual_autocorrelation(r, lags)
+
+
+def residual_autocorrelation(r: np.ndarray, lags: int = 10) -> float:
+    """Mean |normalised autocorrelation| of residuals r at lags 1..``lags``."""
+    r = np.asarray(r, dtype=float) - np.mean(r)
     denom = float(r @ r)
-    if denom <= 0:
+    if denom <= 0 or not np.isfinite(denom):
         return 0.0
     return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 

@@ -67,7 +67,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -936,10 +936,11 @@ class CasadiCollocation(Solver):
             strategy = {"initial_source": source, "initial": dict(zip(problem.names, map(float, theta0))),
                         "global_search": False}
         last = session.last
-        yhat, J = problem.predict_with_jacobian(best.theta)
-        residuals = problem.y - yhat
         extras = {"method": "ipopt", "scheme": o.scheme, "degree": 1 if o.scheme == "trapezoidal" else o.degree,
                   "formulation": o.formulation, "coordinates": o.coordinates, "hessian": o.hessian}
+        result = FitResult.at_estimate(problem, best, nfev=nfev, njev=njev, wall_time_s=0.0,
+                                       strategy=strategy, extras=extras)
+        yhat = problem.y - result.residuals
         nlp = session.nlps.get(False)
         if nlp is not None and last and not last["band"]:
             sd = replace(last["stage_data"], s_x=session.state_scales(best.theta))
@@ -959,24 +960,8 @@ class CasadiCollocation(Solver):
             extras["note"] = "the refinement did not lower the cost; IPOPT figures describe the refinement"
         extras["local_solves"] = search_log + session.log
         extras["casadi_version"] = ca.__version__
-        return FitResult(
-            names=problem.names,
-            theta=best.theta,
-            success=best.status > 0,
-            status=best.status,
-            message=best.message,
-            nfev=nfev,
-            njev=njev,
-            iterations=best.iterations,
-            cost=0.5 * float(residuals @ residuals),
-            wall_time_s=time.perf_counter() - t0,
-            residuals=residuals,
-            jacobian=J[:, problem.free],
-            free=problem.free,
-            trace=best.trace,
-            strategy=strategy,
-            extras=extras,
-        )
+        result.wall_time_s = time.perf_counter() - t0
+        return result
 
 
 def _check_supported(problem: FitProblem) -> None:

@@ -40,23 +40,12 @@ class ScipyLM(Solver):
     def solve(self, problem: FitProblem, progress: Progress | None = None) -> FitResult:
         t0 = time.perf_counter()
         best, report, nfev, njev = search(problem, self._local_fit, self.options.strategy, progress)
-        yhat, J = problem.predict_with_jacobian(best.theta)
-        residuals = problem.y - yhat
-        return FitResult(
-            names=problem.names,
-            theta=best.theta,
-            success=best.status > 0,
-            status=best.status,
-            message=best.message,
+        return FitResult.at_estimate(
+            problem,
+            best,
             nfev=nfev,
             njev=njev,
-            iterations=best.iterations,
-            cost=0.5 * float(residuals @ residuals),
             wall_time_s=time.perf_counter() - t0,
-            residuals=residuals,
-            jacobian=J[:, problem.free],
-            free=problem.free,
-            trace=best.trace,
             strategy=report.as_dict(),
             extras={"method": "lm", "jacobian": self.options.jacobian},
         )
