@@ -1,0 +1,79 @@
+"""``mbus-analyze``: analyses of a campaign table.
+
+    mbus-analyze classify TABLE --by COLUMN [...]
+    mbus-analyze calibrate TABLE [...]
+    mbus-analyze apply-calibration TABLE --calibration FILE [...]
+    mbus-analyze crispness TABLE --scores PANEL [...]
+    mbus-analyze predict TABLE --model FILE [...]
+
+Each subcommand lives in its own module, which provides ``add_arguments(parser)`` and
+``run(args) -> int``. User errors print one line and exit 2, as in ``mbus-run``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from typing import Sequence
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from ..errors import MbusError
+
+#: subcommand -> (module under mbus_framework.analysis, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "classify": ("classify_command", "k-means and LDA (leave-one-out) by group, Tables 4.4/4.5"),
+    "calibrate": ("calibrate_command", "regress MBUS estimates on conventional tests, Table 6.1"),
+    "apply-calibration": ("calibrate_command", "convert MBUS estimates with a saved calibration"),
+    "crispness": ("crispness_command", "predict sensory scores with an LM-trained network, Ch. 7"),
+    "predict": ("crispness_command", "score new samples with a saved crispness model"),
+}
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mbus-analyze", description="Analyses of an mbus campaign table.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        try:
+            mod = importlib.import_module(f"{__package__}.{module}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__package__}.{module}":
+                raise
+            sp.set_defaults(_unavailable=name)
+            continue
+        mod.add_arguments(sp, name) if _takes_name(mod) else mod.add_arguments(sp)
+        sp.set_defaults(_run=mod.run)
+    return p
+
+
+def _takes_name(mod) -> bool:
+    import inspect
+
+    return len(inspect.signature(mod.add_arguments).parameters) >= 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if not args.command:
+        parser.print_usage(sys.stderr)
+        print("mbus-analyze: error: a COMMAND is required", file=sys.stderr)
+        return 2
+    if getattr(args, "_unavailable", None):
+        print(f"mbus-analyze: error: '{args.command}' is not available in this version", file=sys.stderr)
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except MbusError as exc:
+        print(f"mbus-analyze: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("mbus-analyze: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
