@@ -59,8 +59,8 @@ TIME_TARGET_S = 60.0
 
 def table_3_1_problem(tmp: Path):
     """The config's FitProblem (data acquired by the simulated backend) and its solver options."""
-    from mbus_framework.config import load_config
-    from mbus_framework.run import acquire, build_components, make_problem
+    from mbus_framework.pipeline.config import load_config
+    from mbus_framework.pipeline.run import acquire, build_components, make_problem
 
     config = load_config(CONFIG)
     c = build_components(config, str(CONFIG))
@@ -113,8 +113,8 @@ def main(argv=None) -> int:
 
     import casadi
 
-    from mbus_framework.studies import machine_info
-    from mbus_framework.uncertainty import from_jacobian
+    from mbus_framework.studies._studies_tmp import machine_info
+    from mbus_framework.estimation.uncertainty import from_jacobian
     from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
     load_before = machine_info()["load_average_1min"]

@@ -104,7 +104,7 @@ GROUPS: dict[str, tuple[float, tuple[float, float], dict[str, tuple[float, float
 
 # ---------------------------------------------------------------------------------------
 def make_model(length: float, density: float):
-    from mbus_framework.sample import Sample
+    from mbus_framework.interfaces.sample import Sample
     from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
     return KelvinVoigtChain(Sample(length, DIAMETER, density), KelvinVoigtOptions(n_elements=N_ELEMENTS))
@@ -169,10 +169,10 @@ def draw_case(seed: int, index: int, groups: tuple[str, ...] = tuple(GROUPS)) ->
 def run_case(args: tuple) -> dict:
     seed, index = args[0], args[1]
     groups = tuple(args[2]) if len(args) > 2 else tuple(GROUPS)
-    from mbus_framework.registry import default_registry
-    from mbus_framework.simulation import simulate
-    from mbus_framework.solver import FitProblem
-    from mbus_framework.uncertainty import from_jacobian
+    from mbus_framework.interfaces.registry import default_registry
+    from mbus_framework.engine.simulation import simulate
+    from mbus_framework.estimation.problem import FitProblem
+    from mbus_framework.estimation.uncertainty import from_jacobian
     from plugins.excitations.prbs import Prbs, PrbsOptions
 
     case = draw_case(seed, index, groups)
@@ -221,7 +221,7 @@ def run_case(args: tuple) -> dict:
     if fit is None:
         out.update(within_3se=False, within_3se_untruncated=False, global_minimum=False)
         return out
-    from mbus_framework.studies import covariance_from_jacobian
+    from mbus_framework.studies._studies_tmp import covariance_from_jacobian
 
     unc = from_jacobian(names, fit.jacobian, fit.cost)
     se = unc.standard_errors
@@ -308,7 +308,7 @@ def summarise(cases: list[dict], wall: float, workers: int) -> dict:
 
 
 def machine() -> dict:
-    from mbus_framework.studies import machine_info
+    from mbus_framework.studies._studies_tmp import machine_info
 
     return machine_info()
 

@@ -50,8 +50,8 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from mbus_framework.model import MediumModel
-from mbus_framework.simulation import as_float_ss, simulate, simulate_with_sensitivities
+from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.engine.simulation import as_float_ss, simulate, simulate_with_sensitivities
 
 
 def rk4_simulate(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:

@@ -9,7 +9,7 @@ In one process and one run it times, for the Table 3.1 case (rho 1000 kg/m^3, L 
 D 0.0254 m, n = 10, 6200 samples of a PRBS (order 9, bit 2.5 us) at 6.25 MS/s, truth
 k_sigma 3e8 N/m, b_sigma 15 N s/m, k_tau 5e7 N/m, b_tau 12 N s/m):
 
-(a) the engine: exact ZOH simulation (``mbus_framework.simulation.simulate``) and exact
+(a) the engine: exact ZOH simulation (``mbus_framework.engine.simulation.simulate``) and exact
     sensitivities (``simulate_with_sensitivities``);
 (b) the dissertation's method (``benchmarks/dissertation_method.py``): RK4 at the sample
     rate (eq. 3.22) with the input held over each step, and a 1 % forward-difference
@@ -78,8 +78,8 @@ from dissertation_method import (  # noqa: E402
     levenberg_marquardt,
 )
 
-from mbus_framework import simulation as sim  # noqa: E402
-from mbus_framework.sample import Sample  # noqa: E402
+from mbus_framework.engine import simulation as sim  # noqa: E402
+from mbus_framework.interfaces.sample import Sample  # noqa: E402
 from plugins.excitations.prbs import Prbs, PrbsOptions  # noqa: E402
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions  # noqa: E402
 

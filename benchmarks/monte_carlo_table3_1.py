@@ -48,8 +48,8 @@ def _flow(d: dict) -> str:
 
 
 def monte_carlo(n_seeds: int, study_dir: Path) -> dict:
-    from mbus_framework.progress import make_progress
-    from mbus_framework.studies import run_study
+    from mbus_framework.pipeline.progress import make_progress
+    from mbus_framework.studies._studies_tmp import run_study
 
     study = run_study("monte_carlo", CONFIG, [], study_dir, progress=make_progress(), n_runs=n_seeds)
     print(study.text)
@@ -84,7 +84,7 @@ def monte_carlo(n_seeds: int, study_dir: Path) -> dict:
 
 
 def initial_sets(tmp: Path) -> dict:
-    from mbus_framework.run import execute
+    from mbus_framework.pipeline.run import execute
 
     out = {}
     for name, init in INITIAL_SETS.items():
@@ -106,7 +106,7 @@ def initial_sets(tmp: Path) -> dict:
 
 
 def timing(n: int, tmp: Path) -> dict:
-    from mbus_framework.run import execute
+    from mbus_framework.pipeline.run import execute
 
     execute(CONFIG, [], tmp / "warm-up", plots=False)  # imports, plugin discovery, caches
     total, solver = [], []
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.n_seeds < 50:
         print("note: the target asks for at least 50 seeds", file=sys.stderr)
-    from mbus_framework.studies import machine_info
+    from mbus_framework.studies._studies_tmp import machine_info
 
     with tempfile.TemporaryDirectory(prefix="mbus-bench-") as tmp:
         tmp = Path(tmp)

@@ -18,7 +18,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 from typing import Sequence
 
-from .errors import MbusError
+from mbus_framework.errors import MbusError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -66,7 +66,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def list_plugins() -> str:
-    from .registry import default_registry
+    from mbus_framework.interfaces.registry import default_registry
 
     reg = default_registry()
     lines = []
@@ -87,14 +87,14 @@ def list_plugins() -> str:
 def _special_mode(args, progress) -> str | None:
     """Studies, model comparison, excitation design and calibration runs; None for a plain fit."""
     if args.study:
-        from .studies import parse_study_options, run_study
+        from mbus_framework.studies._studies_tmp import parse_study_options, run_study
 
         result = run_study(
             args.study, args.config, args.overrides, args.out, progress, **parse_study_options(args.study_options)
         )
         return result.text
     if args.compare_models:
-        from .compare import run_comparison
+        from mbus_framework.studies.compare import run_comparison
 
         names = [n.strip() for n in args.compare_models.split(",") if n.strip()]
         _table, text = run_comparison(
@@ -102,13 +102,13 @@ def _special_mode(args, progress) -> str | None:
         )
         return text
     if args.design_excitation:
-        from .design import run_design
+        from mbus_framework.studies.design import run_design
 
         return run_design(args.config, args.overrides, args.out)
-    from .config import load_config
+    from mbus_framework.pipeline.config import load_config
 
     if load_config(args.config, args.overrides).calibration is not None:
-        from .calibration import run_calibration
+        from mbus_framework.studies.transducer_calibration import run_calibration
 
         return run_calibration(args.config, args.overrides, args.out, progress)
     return None
@@ -124,9 +124,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
-        from .progress import make_progress
-        from .report import summary_text
-        from .run import execute
+        from mbus_framework.pipeline.progress import make_progress
+        from mbus_framework.pipeline.report import summary_text
+        from mbus_framework.pipeline.run import execute
 
         progress = None if args.quiet else make_progress()
         special = _special_mode(args, progress)

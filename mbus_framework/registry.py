@@ -1,90 +1,11 @@
-"""Registry: the implementations the plugin manager collected, looked up by kind and name."""
-from __future__ import annotations
+"""Stable plugin-author name: ``mbus_framework.registry`` is ``mbus_framework.interfaces.registry``.
 
-from dataclasses import dataclass, field
+Plugins import the interfaces by their short names; the implementation lives in its
+subpackage (see docs/architecture.md). This module *is* that module (one object, so
+isinstance checks and private helpers behave the same under both names).
+"""
+import sys
 
-from .errors import PluginError
-from .hookspecs import HOOKS_BY_KIND, SPEC_BY_KIND, PluginSpec
-from .plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager, one_line_error
-from .suggest import choices_text, did_you_mean
+from mbus_framework.interfaces.registry import __name__ as _target
 
-KIND_BASES = {
-    "model": ("mbus_framework.model", "MediumModel"),
-    "excitation": ("mbus_framework.excitation", "Excitation"),
-    "solver": ("mbus_framework.solver", "Solver"),
-    "compensator": ("mbus_framework.compensator", "Compensator"),
-    "backend": ("mbus_framework.backend", "Backend"),
-}
-
-
-@dataclass(frozen=True)
-class Entry:
-    spec: PluginSpec
-    plugin: str  # registering plugin name (entry-point name)
-    source: str  # distribution / where it came from
-
-
-@dataclass
-class Registry:
-    entries: dict[str, dict[str, Entry]] = field(default_factory=dict)
-    broken: list[BrokenPlugin] = field(default_factory=list)
-
-    @classmethod
-    def from_manager(cls, pm: MbusPluginManager) -> "Registry":
-        import importlib
-
-        reg = cls({kind: {} for kind in HOOKS_BY_KIND}, list(pm.broken))
-        for kind, hook_name in HOOKS_BY_KIND.items():
-            module, base_name = KIND_BASES[kind]
-            base = getattr(importlib.import_module(module), base_name)
-            hook = getattr(pm.hook, hook_name)
-            for impl in hook.get_hookimpls():
-                plugin_name = pm.get_name(impl.plugin) or "?"
-                source = pm.sources.get(plugin_name, "registered in code")
-                try:
-                    specs = impl.function() or []
-                    for spec in specs:
-                        _check_spec(spec, kind, base)
-                except Exception as exc:  # noqa: BLE001 - report and skip the broken plugin
-                    reg.broken.append(BrokenPlugin(plugin_name, source, f"{hook_name}: {one_line_error(exc)}"))
-                    continue
-                for spec in specs:
-                    clash = reg.entries[kind].get(spec.name)
-                    if clash is not None:
-                        raise PluginError(
-                            f"{kind} '{spec.name}' is registered twice: by {clash.plugin} ({clash.source}) "
-                            f"and by {plugin_name} ({source}); uninstall or block one of them"
-                        )
-                    reg.entries[kind][spec.name] = Entry(spec, plugin_name, source)
-        return reg
-
-    def names(self, kind: str) -> list[str]:
-        return sorted(self.entries[kind])
-
-    def get(self, kind: str, name: str) -> PluginSpec:
-        try:
-            return self.entries[kind][name].spec
-        except KeyError:
-            choices = self.names(kind)
-            raise PluginError(
-                f"unknown {kind} '{name}'{did_you_mean(name, choices)}; choose one of: {choices_text(choices)}"
-            ) from None
-
-
-def _check_spec(spec: object, kind: str, base: type) -> None:
-    expected = SPEC_BY_KIND[kind]
-    if not isinstance(spec, expected):
-        raise TypeError(f"expected {expected.__name__} records, got {type(spec).__name__}")
-    if not (isinstance(spec.implementation, type) and issubclass(spec.implementation, base)):
-        raise TypeError(f"{spec.name}: implementation must subclass {base.__name__}")
-
-
-_default: Registry | None = None
-
-
-def default_registry() -> Registry:
-    """Registry over the cached process-wide plugin manager."""
-    global _default
-    if _default is None:
-        _default = Registry.from_manager(get_plugin_manager())
-    return _default
+sys.modules[__name__] = sys.modules[_target]

@@ -1,34 +1,11 @@
-"""Sample geometry: the pressure-wave column between the two transducers."""
-from __future__ import annotations
+"""Stable plugin-author name: ``mbus_framework.sample`` is ``mbus_framework.interfaces.sample``.
 
-import math
-from dataclasses import dataclass
+Plugins import the interfaces by their short names; the implementation lives in its
+subpackage (see docs/architecture.md). This module *is* that module (one object, so
+isinstance checks and private helpers behave the same under both names).
+"""
+import sys
 
+from mbus_framework.interfaces.sample import __name__ as _target
 
-@dataclass(frozen=True)
-class Sample:
-    """Cylindrical pressure-wave column (dissertation Section 3.2.1).
-
-    length:   L, sample thickness between the transducer faces [m]
-    diameter: D, diameter of the transducer element [m]
-    density:  rho [kg/m^3]
-    """
-
-    length: float
-    diameter: float
-    density: float
-
-    @property
-    def area(self) -> float:
-        """Cross-section A = pi D^2 / 4 [m^2]."""
-        return math.pi * self.diameter**2 / 4.0
-
-    @property
-    def circumference(self) -> float:
-        """Lateral perimeter pi D [m], the shear surface per unit length."""
-        return math.pi * self.diameter
-
-    @property
-    def mass(self) -> float:
-        """Mass of the whole column rho A L [kg]."""
-        return self.density * self.area * self.length
+sys.modules[__name__] = sys.modules[_target]

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from mbus_framework.backend import AcquisitionContext
-from mbus_framework.calibration import (
+from mbus_framework.interfaces.backend import AcquisitionContext
+from mbus_framework.studies.transducer_calibration import (
     compare_with_truth,
     estimate_transfer,
     load_calibration,
@@ -19,11 +19,11 @@ from mbus_framework.calibration import (
     save_calibration,
     two_length_estimate,
 )
-from mbus_framework.config import validate_options
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError, DataError
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.sample import Sample
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
 
@@ -182,7 +182,7 @@ def test_calibration_run_saves_records_file_and_figures(tmp_path):
 
 
 def test_records_are_on_disk_before_anything_is_estimated(tmp_path, monkeypatch):
-    import mbus_framework.calibration as calmod
+    import mbus_framework.studies.transducer_calibration as calmod
 
     def boom(*a, **k):
         raise RuntimeError("estimation crashed")

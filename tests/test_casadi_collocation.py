@@ -10,12 +10,12 @@ import pytest
 from pydantic import ValidationError
 
 from mbus_framework.errors import EstimationError
-from mbus_framework.nuisance import NuisanceSettings, delayed_prediction
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import discretize, simulate
-from mbus_framework.solver import FitProblem
-from mbus_framework.storage import to_jsonable
-from mbus_framework.strategy import BandFilter
+from mbus_framework.estimation.nuisance import NuisanceSettings, delayed_prediction
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import discretize, simulate
+from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.pipeline.storage import to_jsonable
+from mbus_framework.estimation.strategy import BandFilter
 from mbus_framework.testing.solvers import contract_problem
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions

@@ -1,4 +1,4 @@
-"""Chain assembler and link laws (mbus_framework.chain), and the contract suite's teeth."""
+"""Chain assembler and link laws (mbus_framework.engine.chain), and the contract suite's teeth."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mbus_framework.chain import (
+from mbus_framework.engine.chain import (
     ChainModel,
     ChainOptions,
     GeneralizedMaxwellLaw,
@@ -20,7 +20,7 @@ from mbus_framework.chain import (
     link_law,
     stiffness,
 )
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.sample import Sample
 from mbus_framework.testing.models import MediumModelContract, response
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.models.maxwell import MaxwellChain, MaxwellOptions

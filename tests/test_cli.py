@@ -118,7 +118,7 @@ def test_run_folder_contents(potato_run):
 
 def test_summary_is_readable(potato_run):
     """What mbus-run prints: parameters and properties with units, fit quality, solver, truth."""
-    from mbus_framework.report import summary_text
+    from mbus_framework.pipeline.report import summary_text
 
     _, out = potato_run
     text = summary_text(result(out), out)

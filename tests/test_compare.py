@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from mbus_framework.compare import (
+from mbus_framework.studies.compare import (
     Candidate,
     ComparisonData,
     compare_models,
@@ -16,9 +16,9 @@ from mbus_framework.compare import (
     render_table,
     run_comparison,
 )
-from mbus_framework.model import StateSpace
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
+from mbus_framework.interfaces.model import StateSpace
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.models.maxwell import MaxwellChain, MaxwellOptions

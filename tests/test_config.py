@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mbus_framework.config import RunConfig, apply_overrides, load_config, read_yaml, validate_options
+from mbus_framework.pipeline.config import RunConfig, apply_overrides, load_config, read_yaml, validate_options
 from mbus_framework.errors import ConfigError, MbusError, PluginError
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.run import build_components, execute
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.pipeline.run import build_components, execute
 
 BASE = {
     "title": "config tests",

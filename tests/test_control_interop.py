@@ -5,15 +5,15 @@ import control
 import numpy as np
 import pytest
 
-from mbus_framework.control_interop import (
+from mbus_framework.engine.control_interop import (
     bode_figure,
     frequency_response,
     to_control,
     transfer_function_estimate,
     write_bode_plot,
 )
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.models.maxwell import MaxwellChain, MaxwellOptions
 from plugins.models.sls import SlsChain, SlsOptions

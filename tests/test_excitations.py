@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.signal import hilbert
 
-from mbus_framework.config import validate_options
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError, DataError
-from mbus_framework.excitation import QuantizeOptions, Waveform, crest_factor, power_spectrum, quantize_waveform
+from mbus_framework.interfaces.excitation import QuantizeOptions, Waveform, crest_factor, power_spectrum, quantize_waveform
 from plugins.excitations.from_file import FromFile, FromFileOptions
 from plugins.excitations.multisine import Multisine, MultisineOptions
 from plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
@@ -271,8 +271,8 @@ def test_quantising_a_prbs_keeps_it_exact_and_full_scale_can_clip():
 
 
 def test_crest_factors_and_registration():
-    from mbus_framework.plugin_manager import new_plugin_manager
-    from mbus_framework.registry import Registry
+    from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+    from mbus_framework.interfaces.registry import Registry
 
     assert make(Prbs, order=7, bit_width=1e-6, sample_rate=4e6).crest_factor() == pytest.approx(1.0)
     t = np.arange(1000) / 1e6

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbus_framework.backend import AcquisitionContext
-from mbus_framework.config import validate_options
+from mbus_framework.interfaces.backend import AcquisitionContext
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import DataError
-from mbus_framework.excitation import Waveform
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.excitation import Waveform
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.sample import Sample
 from plugins.backends.file import FileBackend
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 

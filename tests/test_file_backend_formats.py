@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from mbus_framework.backend import AcquisitionContext
+from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError
-from mbus_framework.excitation import Waveform
-from mbus_framework.storage import write_waveforms
+from mbus_framework.interfaces.excitation import Waveform
+from mbus_framework.pipeline.storage import write_waveforms
 from plugins.backends.file import FileBackend, FileOptions, sniff_format
 from plugins.instruments.shots import (
     ProcessingOptions,

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.sample import Sample
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 NAMES = ["k_sigma", "b_sigma", "k_tau", "b_tau"]

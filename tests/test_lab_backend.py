@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
-from mbus_framework.backend import AcquisitionContext
+from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError, InstrumentError
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.sample import Sample
 from plugins.backends.file import FileBackend, FileOptions
 from plugins.backends.lab import LabBackend, LabOptions
 from plugins.excitations.prbs import Prbs, PrbsOptions

@@ -7,10 +7,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mbus_framework.errors import ConfigError
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem
-from mbus_framework.uncertainty import from_jacobian
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.estimation.uncertainty import from_jacobian
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
@@ -151,7 +151,7 @@ def test_example_config_runs_end_to_end(tmp_path):
     """examples/configs/layered_plates.yaml: plates fixed by their properties, sample estimated."""
     from pathlib import Path
 
-    from mbus_framework.run import execute
+    from mbus_framework.pipeline.run import execute
 
     config = Path(__file__).resolve().parents[1] / "examples" / "configs" / "layered_plates.yaml"
     outcome = execute(config, out_dir=tmp_path / "run", plots=False)

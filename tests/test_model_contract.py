@@ -1,7 +1,7 @@
 """The model contract suite (mbus_framework.testing.models) over every built-in model."""
 from __future__ import annotations
 
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.sample import Sample
 from mbus_framework.testing.models import MediumModelContract
 from plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions

@@ -6,11 +6,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mbus_framework.excitation import Waveform
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem
-from mbus_framework.uncertainty import from_jacobian
+from mbus_framework.interfaces.excitation import Waveform
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.estimation.uncertainty import from_jacobian
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
@@ -150,7 +150,7 @@ def test_initial_guess_finds_the_wave_speed(model, truth):
     """The guess's unrelaxed wave crosses the sample in the measured first-arrival time, and its
     unrelaxed normal stiffness is within a factor 4 of the truth (the arrival of a dispersive,
     relaxing medium lies between its relaxed and unrelaxed speeds)."""
-    from mbus_framework.physics import first_arrival_time
+    from mbus_framework.engine.physics import first_arrival_time
 
     w = prbs(3000)
     y = simulate(model, truth, w.u, w.dt)

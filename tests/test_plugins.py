@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 
 import mbus_framework
-from mbus_framework import plugin_manager as pm_module
-from mbus_framework import registry as registry_module
+from mbus_framework.interfaces import plugin_manager as pm_module
+from mbus_framework.interfaces import registry as registry_module
 from mbus_framework.cli import main
 from mbus_framework.errors import PluginError
-from mbus_framework.hookspecs import (
+from mbus_framework.interfaces.hookspecs import (
     PROJECT,
     BackendSpec,
     CompensatorSpec,
@@ -26,8 +26,8 @@ from mbus_framework.hookspecs import (
     SolverSpec,
     hookimpl,
 )
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -286,7 +286,7 @@ def test_broken_hook_is_reported_and_skipped(case, monkeypatch, capsys):
 
 
 def test_broken_plugin_does_not_take_a_run_down(tmp_path):
-    from mbus_framework.run import execute
+    from mbus_framework.pipeline.run import execute
 
     bad = plugin_module("acme_bad", mbus_solvers=lambda: 1 / 0)
     reg = Registry.from_manager(new_plugin_manager(extra_plugins=[("acme_bad", bad)]))

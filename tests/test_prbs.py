@@ -6,9 +6,9 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from mbus_framework.config import validate_options
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError
-from mbus_framework.excitation import power_spectrum
+from mbus_framework.interfaces.excitation import power_spectrum
 from plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
 
 
@@ -153,8 +153,8 @@ def test_power_spectrum_of_a_sine():
 
 
 def test_registered_as_prbs():
-    from mbus_framework.plugin_manager import new_plugin_manager
-    from mbus_framework.registry import Registry
+    from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+    from mbus_framework.interfaces.registry import Registry
 
     reg = Registry.from_manager(new_plugin_manager())
     assert reg.get("excitation", "prbs").implementation is Prbs

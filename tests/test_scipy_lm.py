@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from mbus_framework.config import validate_options
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem, FitResult
-from mbus_framework.uncertainty import from_jacobian
+from mbus_framework.pipeline.config import validate_options
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem, FitResult
+from mbus_framework.estimation.uncertainty import from_jacobian
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions

@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbus_framework.backend import AcquisitionContext
+from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
 from plugins.backends.file import FileBackend, FileOptions
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.instruments.gds_csv import parse_number, read_gds_csv

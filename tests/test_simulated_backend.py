@@ -4,13 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mbus_framework.backend import AcquisitionContext
-from mbus_framework.config import validate_options
+from mbus_framework.interfaces.backend import AcquisitionContext
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError, PluginError
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 

@@ -23,10 +23,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import matrix_balance
 
-from mbus_framework import simulation as sim
-from mbus_framework.arrays import zeros_like_params
-from mbus_framework.model import MediumModel, Parameter, Property, StateSpace
-from mbus_framework.sample import Sample
+from mbus_framework.engine import simulation as sim
+from mbus_framework.engine.arrays import zeros_like_params
+from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
+from mbus_framework.interfaces.sample import Sample
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 control = pytest.importorskip("control")

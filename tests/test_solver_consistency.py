@@ -8,7 +8,7 @@ within x/÷ 1.3 of the truth):
 
 * noise-free data: both recover the truth and agree to 1e-4 relative;
 * noisy data (5 %): both reach the same minimum, |theta_casadi - theta_scipy| <= 0.1 SE
-  (SE the linearised standard error of :mod:`mbus_framework.uncertainty`).
+  (SE the linearised standard error of :mod:`mbus_framework.estimation.uncertainty`).
 
 The default run draws a few examples with one start of the global strategy (deterministic
 under HYPOTHESIS_PROFILE=ci); the ``slow`` variants run the solvers as shipped (full strategy)
@@ -21,10 +21,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem
-from mbus_framework.uncertainty import from_jacobian
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.estimation.uncertainty import from_jacobian
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.solvers.casadi_collocation import CasadiCollocation, CasadiCollocationOptions

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbus_framework import storage
-from mbus_framework.storage import (
+from mbus_framework.pipeline import storage
+from mbus_framework.pipeline.storage import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_write_npz,

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem, Progress
-from mbus_framework.strategy import (
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem, Progress
+from mbus_framework.estimation.strategy import (
     BandFilter,
     LocalResult,
     StrategyOptions,
@@ -24,7 +24,7 @@ from mbus_framework.strategy import (
     search,
     signal_bandwidth,
 )
-from mbus_framework.uncertainty import from_jacobian
+from mbus_framework.estimation.uncertainty import from_jacobian
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
@@ -272,7 +272,7 @@ def test_noise_free_exact_fit_stops_the_search_at_once():
 
 
 def test_same_minimum_uses_a_round_off_floor():
-    from mbus_framework.strategy import _same_minimum
+    from mbus_framework.estimation.strategy import _same_minimum
 
     theta = np.array([1.0, 2.0])
     a, b = LocalResult(theta, 1e-26, 1, 1, 1, "", 1), LocalResult(theta * (1 + 1e-12), 4e-26, 1, 1, 1, "", 1)

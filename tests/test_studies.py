@@ -1,5 +1,5 @@
 """Studies (issue 4, item 6): every table statistic is recomputed here from the per-run
-result.json files the study leaves behind, independently of mbus_framework.studies."""
+result.json files the study leaves behind, independently of mbus_framework.studies._studies_tmp."""
 from __future__ import annotations
 
 import csv
@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from mbus_framework.errors import ConfigError
-from mbus_framework.studies import (
+from mbus_framework.studies._studies_tmp import (
     StudyResult,
     parse_int_list,
     parse_study_options,
@@ -98,7 +98,7 @@ def test_settle_index():
 
 # -- Monte Carlo ---------------------------------------------------------------------------
 def test_monte_carlo_statistics_on_known_numbers():
-    from mbus_framework.studies import monte_carlo_statistics
+    from mbus_framework.studies._studies_tmp import monte_carlo_statistics
 
     est = np.array([9.0, 10.5, 11.0, 12.0, 10.0])
     se = np.array([0.4, 0.5, 1.0, 0.5, 0.1])
@@ -146,8 +146,8 @@ def test_monte_carlo_statistics_match_the_runs(tmp_path):
 
     # Cramer-Rao bound recomputed from scratch: central differences of the exact simulator,
     # sigma = 10 % of the RMS of the noise-free output.
-    from mbus_framework.sample import Sample
-    from mbus_framework.simulation import simulate
+    from mbus_framework.interfaces.sample import Sample
+    from mbus_framework.engine.simulation import simulate
     from plugins.excitations.prbs import Prbs, PrbsOptions
     from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 

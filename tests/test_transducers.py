@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mbus_framework.backend import AcquisitionContext
-from mbus_framework.calibration import SpectralFilter, hold_response
-from mbus_framework.config import validate_options
+from mbus_framework.interfaces.backend import AcquisitionContext
+from mbus_framework.studies.transducer_calibration import SpectralFilter, hold_response
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate, simulate_ss
+from mbus_framework.interfaces.plugin_manager import new_plugin_manager
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate, simulate_ss
 from plugins.backends.transducers import BandPass, TransducerPair, TransducerPairOptions, series
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
@@ -98,7 +98,7 @@ def test_sine_through_the_pair_has_the_pair_gain_and_phase(registry):
     times the hold's e^{-i pi f h} sinc(f h)."""
     f0, n = 0.6e6, 12500
     t = np.arange(n) / FS
-    from mbus_framework.excitation import Waveform
+    from mbus_framework.interfaces.excitation import Waveform
 
     w = Waveform(t, np.sin(2 * np.pi * f0 * t))
     opts = {"wave": {"attenuation": 0.0}, "noise": {"relative_std": 0.0}, "transducers": {"order": 3}}
@@ -117,7 +117,7 @@ def test_plane_wave_medium_delays_and_attenuates(registry, waveform):
     assert m.meta["true_properties"]["sound_speed"] == 1480.0
     # Attenuation alpha_1 (f/1MHz)^2: a burst that ends well inside the record keeps its whole
     # response, so the spectra's ratio is the zero-phase factor exp(-L alpha(f)).
-    from mbus_framework.excitation import Waveform
+    from mbus_framework.interfaces.excitation import Waveform
 
     u = np.where(np.arange(3000) < 600, waveform.u, 0.0)
     burst = Waveform(waveform.t, u)

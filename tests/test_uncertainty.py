@@ -7,10 +7,10 @@ import pytest
 from scipy import stats
 from scipy.optimize import least_squares
 
-from mbus_framework.sample import Sample
-from mbus_framework.simulation import simulate
-from mbus_framework.solver import FitProblem
-from mbus_framework.uncertainty import from_jacobian, property_covariance
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import simulate
+from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 

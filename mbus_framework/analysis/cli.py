@@ -20,7 +20,7 @@ from typing import Sequence
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from ..errors import MbusError
+from mbus_framework.errors import MbusError
 
 #: subcommand -> (module under mbus_framework.analysis, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {

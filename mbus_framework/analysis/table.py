@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-from ..errors import DataError
+from mbus_framework.errors import DataError
 
 #: The four Kelvin-Voigt material properties, in the dissertation's order.
 PROPERTIES = ("E_sigma", "eta_sigma", "E_tau", "eta_tau")

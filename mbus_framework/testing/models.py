@@ -3,7 +3,7 @@
 A model author subclasses :class:`MediumModelContract` in a test module and says which
 models to check::
 
-    from mbus_framework.sample import Sample
+    from mbus_framework.interfaces.sample import Sample
     from mbus_framework.testing.models import MediumModelContract
 
     class TestMyChain(MediumModelContract):
@@ -42,10 +42,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ..arrays import to_casadi
-from ..model import MediumModel, StateSpace
-from ..simulation import as_float_ss, simulate, simulate_ss
-from ..solver import FitProblem
+from mbus_framework.engine.arrays import to_casadi
+from mbus_framework.interfaces.model import MediumModel, StateSpace
+from mbus_framework.engine.simulation import as_float_ss, simulate, simulate_ss
+from mbus_framework.estimation.problem import FitProblem
 
 # differing_executors: the tests are shared by every subclass (one per model), by design.
 _SETTINGS = settings(max_examples=10, deadline=None,
@@ -87,7 +87,7 @@ def binary_input(n: int, bit: int = 3, seed: int = 0) -> np.ndarray:
 
 
 class MediumModelContract:
-    """Mixin of contract tests for :class:`~mbus_framework.model.MediumModel` plugins.
+    """Mixin of contract tests for :class:`~mbus_framework.interfaces.model.MediumModel` plugins.
 
     Override :meth:`make_models`; optionally ``model_name`` (checked to be registered),
     ``spread`` (random parameters within typical x/÷ spread), ``registry`` (default: the
@@ -112,7 +112,7 @@ class MediumModelContract:
     def get_registry(self):
         if self.registry is not None:
             return self.registry
-        from ..registry import default_registry
+        from mbus_framework.interfaces.registry import default_registry
 
         return default_registry()
 
@@ -294,7 +294,7 @@ class MediumModelContract:
         names = self.solver_names if self.solver_names is not None else registry.names("solver")
         if not names:
             pytest.skip("no solver registered")
-        from ..config import validate_options
+        from mbus_framework.pipeline.config import validate_options
 
         model = self.make_models()[0]
         truth = typical_theta(model)

@@ -29,9 +29,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..sample import Sample
-from ..simulation import as_float_ss, simulate
-from ..solver import FitProblem, FitResult
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.engine.simulation import as_float_ss, simulate
+from mbus_framework.estimation.problem import FitProblem, FitResult
 
 #: Table 3.1-like material: E_sigma [Pa], eta_sigma [Pa s], E_tau [Pa], eta_tau [Pa s]
 CONTRACT_PROPERTIES = {"E_sigma": 2.5e9, "eta_sigma": 150.0, "E_tau": 6.0e8, "eta_tau": 150.0}
@@ -49,7 +49,7 @@ def contract_problem(n_samples: int = 600, n_elements: int = 3, seed: int = 4, r
     """(noise-free problem, truth) of the registered ``kelvin_voigt`` chain; ``kw`` go to
     :class:`FitProblem` (initial, fixed, lower, upper, ...)."""
     if registry is None:
-        from ..registry import default_registry
+        from mbus_framework.interfaces.registry import default_registry
 
         registry = default_registry()
     cls = registry.get("model", "kelvin_voigt").implementation
@@ -64,7 +64,7 @@ def contract_problem(n_samples: int = 600, n_elements: int = 3, seed: int = 4, r
 
 
 class SolverContract:
-    """Mixin of contract tests for :class:`~mbus_framework.solver.Solver` plugins.
+    """Mixin of contract tests for :class:`~mbus_framework.estimation.problem.Solver` plugins.
 
     Set ``solver_name``; optionally ``solver_options`` (a mapping validated by the solver's
     ``Options``), ``registry`` (default: the process-wide one) and the tolerances.
@@ -80,12 +80,12 @@ class SolverContract:
     def get_registry(self):
         if self.registry is not None:
             return self.registry
-        from ..registry import default_registry
+        from mbus_framework.interfaces.registry import default_registry
 
         return default_registry()
 
     def make_solver(self):
-        from ..config import validate_options
+        from mbus_framework.pipeline.config import validate_options
 
         spec = self.get_registry().get("solver", self.solver_name)
         options = validate_options(spec.implementation.Options, dict(self.solver_options),
@@ -170,7 +170,7 @@ class SolverContract:
         for rec in fit.trace:
             assert {"iteration", "cost", "theta"} <= set(rec) and len(rec["theta"]) == p
         assert isinstance(fit.strategy, dict) and isinstance(fit.extras, dict)
-        from ..storage import to_jsonable
+        from mbus_framework.pipeline.storage import to_jsonable
 
         json.dumps(to_jsonable({"strategy": fit.strategy, "extras": fit.extras, "trace": fit.trace}))
 
@@ -183,7 +183,7 @@ def contract_classes(options: dict[str, dict[str, Any]] | None = None, registry=
         globals().update(contract_classes({"scipy_lm": {...}}))
     """
     if registry is None:
-        from ..registry import default_registry
+        from mbus_framework.interfaces.registry import default_registry
 
         registry = default_registry()
     options = options or {}

@@ -28,9 +28,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from mbus_framework.backend import AcquisitionContext, Backend, Measurement
+from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.errors import DataError
-from mbus_framework.hookspecs import BackendSpec, hookimpl
+from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 
 from plugins.instruments.gds_csv import read_gds_csv
 from plugins.instruments.shots import ProcessingOptions, Reference, Shot, combine, load_run, rescale

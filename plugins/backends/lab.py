@@ -23,9 +23,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from mbus_framework.backend import AcquisitionContext, Backend, Measurement
+from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.errors import InstrumentError, MbusError
-from mbus_framework.hookspecs import BackendSpec, hookimpl
+from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from plugins.instruments.ds340 import DS340, DS340Options, scale_to_points
 from plugins.instruments.gds2000 import GDS2000, GDS2000Options
 from plugins.instruments.shots import (

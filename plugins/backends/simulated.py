@@ -2,7 +2,7 @@
 
 The designed excitation u [N] drives the true medium (by default the model being fitted,
 optionally another model or element count given under ``medium``), simulated exactly
-(:mod:`mbus_framework.simulation`). Noise is explicit:
+(:mod:`mbus_framework.engine.simulation`). Noise is explicit:
 
     y = y_true + e,   e ~ N(0, sigma^2) i.i.d.,
     y_true(t) = g * y_medium(t - tau)    (g = input_gain, tau = delay; defaults 1 and 0)
@@ -36,12 +36,12 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import fft as sfft
 
-from mbus_framework.backend import AcquisitionContext, Backend, Measurement
-from mbus_framework.config import validate_options
+from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
+from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError
-from mbus_framework.hookspecs import BackendSpec, hookimpl
-from mbus_framework.nuisance import delayed_prediction
-from mbus_framework.simulation import simulate
+from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
+from mbus_framework.estimation.nuisance import delayed_prediction
+from mbus_framework.engine.simulation import simulate
 from plugins.backends.transducers import ScopeOptions, TransducerPair, TransducerPairOptions, adc, adc_step
 
 

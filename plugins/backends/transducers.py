@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import signal as sps
 
-from mbus_framework.model import StateSpace
+from mbus_framework.interfaces.model import StateSpace
 
 
 class TransducerMismatch(BaseModel):
@@ -178,7 +178,7 @@ def series(first: StateSpace, second: StateSpace) -> StateSpace:
 
 
 class Cascade:
-    """pre -> model(theta) -> post as one model for :func:`mbus_framework.simulation.simulate`."""
+    """pre -> model(theta) -> post as one model for :func:`mbus_framework.engine.simulation.simulate`."""
 
     def __init__(self, pre: StateSpace | None, model, post: StateSpace | None):
         self.pre, self.model, self.post = pre, model, post

@@ -1,9 +1,9 @@
 """``none`` compensator: fit the record as measured."""
 from __future__ import annotations
 
-from mbus_framework.backend import Measurement
-from mbus_framework.compensator import Compensator
-from mbus_framework.hookspecs import CompensatorSpec, hookimpl
+from mbus_framework.interfaces.backend import Measurement
+from mbus_framework.interfaces.compensator import Compensator
+from mbus_framework.interfaces.hookspecs import CompensatorSpec, hookimpl
 
 
 class NoCompensation(Compensator):

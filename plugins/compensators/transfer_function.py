@@ -1,6 +1,6 @@
 """``transfer_function`` compensator (Chapter 5): remove or model the transducer pair G_TR.
 
-G_TR(f) comes from a calibration file (:mod:`mbus_framework.calibration`, written by a
+G_TR(f) comes from a calibration file (:mod:`mbus_framework.studies.transducer_calibration`, written by a
 calibration run such as ``configs/water_calibration.yaml``). It is known only in the band where
 the calibration is reliable (``band`` narrows it), so the fit is confined to that band in both
 modes: a zero-phase window P(f) (1 inside, raised-cosine edges of ``taper`` times the band width
@@ -41,11 +41,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import fft as sfft
 from scipy.ndimage import uniform_filter1d
 
-from mbus_framework.backend import Measurement
-from mbus_framework.calibration import Calibration, SpectralFilter, coloured_noise_standard_errors, load_calibration
-from mbus_framework.compensator import Compensator
+from mbus_framework.interfaces.backend import Measurement
+from mbus_framework.studies.transducer_calibration import Calibration, SpectralFilter, coloured_noise_standard_errors, load_calibration
+from mbus_framework.interfaces.compensator import Compensator
 from mbus_framework.errors import ConfigError, DataError
-from mbus_framework.hookspecs import CompensatorSpec, hookimpl
+from mbus_framework.interfaces.hookspecs import CompensatorSpec, hookimpl
 
 
 class TransferFunctionOptions(BaseModel):

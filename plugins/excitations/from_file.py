@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from mbus_framework.errors import DataError
-from mbus_framework.excitation import DesignedExcitation, ExcitationOptions
-from mbus_framework.hookspecs import ExcitationSpec, hookimpl
+from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
+from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
 
 
 class FromFileOptions(ExcitationOptions):

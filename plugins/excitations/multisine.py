@@ -19,8 +19,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from mbus_framework.excitation import DesignedExcitation, ExcitationOptions
-from mbus_framework.hookspecs import ExcitationSpec, hookimpl
+from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
+from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
 
 
 class MultisineOptions(ExcitationOptions):

@@ -18,8 +18,8 @@ import numpy as np
 from pydantic import Field, model_validator
 from scipy.signal import max_len_seq
 
-from mbus_framework.excitation import DesignedExcitation, ExcitationOptions, record_length
-from mbus_framework.hookspecs import ExcitationSpec, hookimpl
+from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
+from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
 
 
 class PrbsOptions(ExcitationOptions):

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import signal
 
 from mbus_framework.errors import DataError
-from mbus_framework.storage import atomic_write_json, atomic_write_npz, to_jsonable
+from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_npz, to_jsonable
 
 FORMAT = "mbus-lab-shots/1"
 SHOT_DIR = "shots"

@@ -23,9 +23,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from mbus_framework.chain import ChainModel, KelvinVoigtLaw
-from mbus_framework.hookspecs import MediumModelSpec, hookimpl
-from mbus_framework.physics import first_arrival_time
+from mbus_framework.engine.chain import ChainModel, KelvinVoigtLaw
+from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from mbus_framework.engine.physics import first_arrival_time
 
 
 class KelvinVoigtOptions(BaseModel):
@@ -36,7 +36,7 @@ class KelvinVoigtOptions(BaseModel):
 class KelvinVoigtChain(ChainModel):
     """Chain of n masses joined by Kelvin-Voigt links, with Kelvin-Voigt shear to ground.
 
-    Assembled by :func:`mbus_framework.chain.assemble_chain` from :class:`KelvinVoigtLaw` in
+    Assembled by :func:`mbus_framework.engine.chain.assemble_chain` from :class:`KelvinVoigtLaw` in
     both directions; parameters [k_sigma, b_sigma, k_tau, b_tau], properties
     [E_sigma, eta_sigma, E_tau, eta_tau]. Numerically identical to eqs. 3.3-3.21 (tested).
     """

@@ -4,7 +4,7 @@ The column (diameter D) is a stack of layers l = 1..m (transmitter side first), 
 flesh, or coupling plates around a sample (dissertation Section 8.2, heterogeneous media).
 Layer l has length L_l, density rho_l, n_l elements of length L_l/n_l and element mass
 mu_l = rho_l (pi D^2/4) L_l / n_l, and its own normal and shear link laws
-(:mod:`mbus_framework.chain`). Elements are numbered through the stack, i = 1..N (N = sum n_l).
+(:mod:`mbus_framework.engine.chain`). Elements are numbered through the stack, i = 1..N (N = sum n_l).
 Node i sits at the transmitter-side end of element i:
 
     normal link i (law and coefficients of element i's layer) joins node i and node i+1;
@@ -39,7 +39,7 @@ from typing import Literal, Mapping
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from mbus_framework.chain import (
+from mbus_framework.engine.chain import (
     ChainModel,
     ChainOptions,
     LinkLaw,
@@ -48,10 +48,10 @@ from mbus_framework.chain import (
     link_law,
 )
 from mbus_framework.errors import ConfigError
-from mbus_framework.hookspecs import MediumModelSpec, hookimpl
-from mbus_framework.model import MediumModel, Parameter, Property, StateSpace
-from mbus_framework.physics import first_arrival_time
-from mbus_framework.sample import Sample
+from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
+from mbus_framework.engine.physics import first_arrival_time
+from mbus_framework.interfaces.sample import Sample
 from mbus_framework.suggest import did_you_mean
 
 LawName = Literal["kelvin_voigt", "maxwell", "sls", "generalized_maxwell"]

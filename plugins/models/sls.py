@@ -36,8 +36,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from mbus_framework.chain import ChainModel, StandardLinearSolidLaw
-from mbus_framework.hookspecs import MediumModelSpec, hookimpl
+from mbus_framework.engine.chain import ChainModel, StandardLinearSolidLaw
+from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
 
 
 class SlsOptions(BaseModel):

@@ -54,7 +54,7 @@ local solve starts feasible (constraint violation ~1e-15).
 **Global strategy.** From a feasible (simulated) start the first constrained Gauss-Newton step
 equals the single-shooting step, so the collocation NLP alone has local minima too. By
 default each local solve is run inside the framework's global strategy
-(:mod:`mbus_framework.strategy`: time-scale alignment, band continuation, multi-start); the
+(:mod:`mbus_framework.estimation.strategy`: time-scale alignment, band continuation, multi-start); the
 band-limited stages fit a causal 4th-order Butterworth-filtered residual whose filter states
 join the NLP (same |H| as the strategy's zero-phase filter), so every stage stays sparse.
 ``global_search: false`` solves once from the initial values.
@@ -74,11 +74,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from mbus_framework.errors import EstimationError
-from mbus_framework.hookspecs import SolverSpec, hookimpl
-from mbus_framework.nuisance import DELAY, GAIN
-from mbus_framework.simulation import as_float_ss, discretize
-from mbus_framework.solver import FitProblem, FitResult, Progress, Solver
-from mbus_framework.strategy import BandFilter, LocalResult, StrategyOptions, search
+from mbus_framework.interfaces.hookspecs import SolverSpec, hookimpl
+from mbus_framework.estimation.nuisance import DELAY, GAIN
+from mbus_framework.engine.simulation import as_float_ss, discretize
+from mbus_framework.estimation.problem import FitProblem, FitResult, Progress, Solver
+from mbus_framework.estimation.strategy import BandFilter, LocalResult, StrategyOptions, search
 
 LOG_RANGE = 23.0  # a log-parameter moves at most e^23 ~ 1e10 from the start of a local solve
 IPOPT_STATUS = {
@@ -200,7 +200,7 @@ def stability_polynomials(degree: int, scheme: str) -> tuple[np.ndarray, np.ndar
 def _symbolic_state_space(model, theta_sym):
     import casadi as ca
 
-    from mbus_framework.arrays import to_casadi
+    from mbus_framework.engine.arrays import to_casadi
 
     k = theta_sym.numel()
     ss = model.state_space(np.array([theta_sym[i] for i in range(k)], dtype=object))
@@ -765,7 +765,7 @@ class _Session:
     """Everything one ``solve`` shares between its local solves (NLPs are built once)."""
 
     def __init__(self, problem: FitProblem, opts: CasadiCollocationOptions):
-        from mbus_framework.nuisance import _split_delay
+        from mbus_framework.estimation.nuisance import _split_delay
 
         self.problem, self.opts = problem, opts
         self.h = problem.dt

@@ -4,8 +4,8 @@ Local solves are ``scipy.optimize.least_squares(method="lm")`` (MINPACK) on the 
 r = F(y - yhat(theta)), F an optional band-limiting filter of the continuation, in
 log-parameters phi = ln(theta) (positivity and scaling for free). The Jacobian is exact,
 d yhat / d phi = (d yhat / d theta) theta, from the forward-sensitivity system
-(:mod:`mbus_framework.simulation`); ``jacobian: finite_difference`` switches to SciPy's
-2-point differences for comparison. The global strategy is :mod:`mbus_framework.strategy`.
+(:mod:`mbus_framework.engine.simulation`); ``jacobian: finite_difference`` switches to SciPy's
+2-point differences for comparison. The global strategy is :mod:`mbus_framework.estimation.strategy`.
 """
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import least_squares
 
-from mbus_framework.hookspecs import SolverSpec, hookimpl
-from mbus_framework.solver import FitProblem, FitResult, Progress, Solver
-from mbus_framework.strategy import BandFilter, LocalResult, StrategyOptions, search
+from mbus_framework.interfaces.hookspecs import SolverSpec, hookimpl
+from mbus_framework.estimation.problem import FitProblem, FitResult, Progress, Solver
+from mbus_framework.estimation.strategy import BandFilter, LocalResult, StrategyOptions, search
 
 LOG_RANGE = 23.0  # a log-parameter may move at most e^23 ~ 1e10 from its start
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mbus_framework.simulation import simulate
+from mbus_framework.engine.simulation import simulate
 
 from .ds340 import FakeDS340
 from .gds2000 import FakeGDS2000

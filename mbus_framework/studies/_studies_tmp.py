@@ -47,11 +47,11 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from . import __version__
-from .config import format_validation_error, load_config
-from .errors import ConfigError, EstimationError
-from .solver import Progress
-from .storage import atomic_write_bytes, atomic_write_json, atomic_write_text
+from mbus_framework import __version__
+from mbus_framework.pipeline.config import format_validation_error, load_config
+from mbus_framework.errors import ConfigError, EstimationError
+from mbus_framework.estimation.problem import Progress
+from mbus_framework.pipeline.storage import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 KINDS = ("monte_carlo", "element_sweep", "repeatability")
 
@@ -175,7 +175,7 @@ def parse_study_options(items: list[str] | None) -> dict[str, Any]:
 
 def validate_study_options(kind: str, options: dict[str, Any]):
     if kind not in OPTIONS:
-        from .suggest import did_you_mean
+        from mbus_framework.suggest import did_you_mean
 
         raise ConfigError(f"unknown study '{kind}'{did_you_mean(kind, KINDS)}; choose one of: {', '.join(KINDS)}")
     try:
@@ -300,7 +300,7 @@ class _Context:
         ``keep_outcome(outcome, record)`` may add to the record while the outcome is alive.
         An :class:`EstimationError` is recorded (``ok: false``), not raised.
         """
-        from .run import execute
+        from mbus_framework.pipeline.run import execute
 
         dest = self.out_dir / "runs" / label
         record: dict[str, Any] = {"label": label, "overrides": list(extra)}
@@ -366,7 +366,7 @@ def compact_record(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def _base_components(ctx: _Context):
-    from .run import build_components
+    from mbus_framework.pipeline.run import build_components
 
     config = load_config(ctx.config_path, ctx.overrides)
     return build_components(config, ctx.config_path)
@@ -387,8 +387,8 @@ def cramer_rao_bound(outcome) -> dict[str, Any] | None:
     ``{"parameters": {...}, "properties": {...}}`` or None when there is no truth for the
     fitted model or no known noise.
     """
-    from .run import make_problem
-    from .uncertainty import property_covariance
+    from mbus_framework.pipeline.run import make_problem
+    from mbus_framework.estimation.uncertainty import property_covariance
 
     m = outcome.measurement
     sigma = m.meta.get("noise_std")
@@ -410,7 +410,7 @@ def cramer_rao_bound(outcome) -> dict[str, Any] | None:
 
 def covariance_from_jacobian(J: np.ndarray, variance: float) -> np.ndarray:
     """variance (J^T J)^-1 without truncation (see :func:`uncertainty.scaled_inverse_gram`)."""
-    from .uncertainty import scaled_inverse_gram
+    from mbus_framework.estimation.uncertainty import scaled_inverse_gram
 
     return variance * scaled_inverse_gram(J)[0]
 
@@ -675,7 +675,7 @@ def _element_sweep(ctx: _Context):
     def fixed_override(n: int) -> list[str]:
         if fixed_props is None:
             return []
-        from .run import build_components
+        from mbus_framework.pipeline.run import build_components
 
         cfg = load_config(ctx.config_path, ctx.overrides + [f"model.options.n_elements={n}"])
         model_n = build_components(cfg, ctx.config_path).model

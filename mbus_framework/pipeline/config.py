@@ -14,8 +14,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError, field_validator
 
-from .errors import ConfigError
-from .suggest import did_you_mean
+from mbus_framework.errors import ConfigError
+from mbus_framework.suggest import did_you_mean
 
 
 class ConfigLoader(yaml.SafeLoader):
@@ -137,10 +137,10 @@ class RunConfig(_Strict):
     nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
     calibration: dict[str, Any] | None = Field(
-        None, description="makes the run a transducer calibration (see mbus_framework.calibration)"
+        None, description="makes the run a transducer calibration (see mbus_framework.studies._studies_tmp.transducer_calibration)"
     )
     design: dict[str, Any] | None = Field(
-        None, description="options of --design-excitation (see mbus_framework.design)"
+        None, description="options of --design-excitation (see mbus_framework.studies._studies_tmp.design)"
     )
     output: OutputConfig = Field(default_factory=OutputConfig)
 

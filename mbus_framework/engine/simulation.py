@@ -121,7 +121,7 @@ from scipy import fft as sfft
 from scipy.linalg import expm
 from scipy.linalg.lapack import dgebal
 
-from .model import MediumModel, StateSpace
+from mbus_framework.interfaces.model import MediumModel, StateSpace
 
 Hold = Literal["zoh", "foh"]
 Method = Literal["auto", "modal", "doubling"]
@@ -811,7 +811,7 @@ def state_space_derivatives(model: MediumModel, theta) -> list[StateSpace]:
 
     M'(theta) = Im M(theta + i s e_i) / s with s = 1e-20 |theta_i| (1e-20 when theta_i = 0):
     no subtraction, so no cancellation; the truncation error O(s^2) is far below round-off.
-    Requires the model to be written with analytic arithmetic (see :mod:`mbus_framework.arrays`).
+    Requires the model to be written with analytic arithmetic (see :mod:`mbus_framework.engine.arrays`).
     """
     theta = np.asarray(theta, dtype=float)
     out = []

@@ -7,16 +7,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy import stats
 
-from . import __version__
-from .nuisance import DELAY, GAIN
-from .strategy import at_box_edge, residual_autocorrelation
-from .uncertainty import from_jacobian, property_covariance
+from mbus_framework import __version__
+from mbus_framework.estimation.nuisance import DELAY, GAIN
+from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
+from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .backend import Measurement
-    from .excitation import Waveform
-    from .run import Components
-    from .solver import FitProblem, FitResult
+    from mbus_framework.interfaces.backend import Measurement
+    from mbus_framework.interfaces.excitation import Waveform
+    from mbus_framework.pipeline.run import Components
+    from mbus_framework.estimation.problem import FitProblem, FitResult
 
 
 def build_result(

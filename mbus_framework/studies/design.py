@@ -48,7 +48,7 @@ from typing import Any, Callable
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .errors import ConfigError
+from mbus_framework.errors import ConfigError
 
 #: Root of tan(pi x) = 2 pi x: f_hi T_b maximising the PRBS density T_b sinc^2(f_hi T_b).
 X_STAR = 0.37101
@@ -152,8 +152,8 @@ def rank_excitations(
     hold: str = "zoh",
 ) -> list[Ranked]:
     """Rank (label, plugin name, options, Waveform) by log det of the Fisher information."""
-    from .excitation import crest_factor, power_spectrum
-    from .solver import FitProblem
+    from mbus_framework.interfaces.excitation import crest_factor, power_spectrum
+    from mbus_framework.estimation.problem import FitProblem
 
     out = []
     for label, name, options, w in waveforms:
@@ -183,7 +183,7 @@ def rank_excitations(
 
 
 def _split_design(config_path, overrides) -> tuple[dict, DesignOptions]:
-    from .config import apply_overrides, read_yaml, validate_options
+    from mbus_framework.pipeline.config import apply_overrides, read_yaml, validate_options
 
     data = apply_overrides(read_yaml(config_path), overrides or [])
     raw = data.pop("design", None)
@@ -214,9 +214,9 @@ def default_candidates(c, proposal: PrbsProposal, band, fs: float, n: int, ampli
 
 def run_design(config_path, overrides=None, out_dir=None) -> str:
     """``mbus-run CONFIG --design-excitation``: print the ranking, write design.json and the spectra plot."""
-    from .config import validate_options, validate_structure
-    from .run import build_components, new_run_dir
-    from .storage import atomic_write_json
+    from mbus_framework.pipeline.config import validate_options, validate_structure
+    from mbus_framework.pipeline.run import build_components, new_run_dir
+    from mbus_framework.pipeline.storage import atomic_write_json
 
     source = str(config_path)
     data, d = _split_design(config_path, overrides)
@@ -296,9 +296,9 @@ def _nominal(c, d: DesignOptions, source: str) -> tuple[np.ndarray, str]:
 
 def _rig(c, d: DesignOptions, source: str):
     """(output filter or None, description, |G_TR| function for the plot or None)."""
-    from .calibration import load_calibration
+    from mbus_framework.studies.transducer_calibration import load_calibration
 
-    from .calibration import SpectralFilter as spectral
+    from mbus_framework.studies.transducer_calibration import SpectralFilter as spectral
 
     if d.calibration:
         cal = load_calibration(d.calibration)
@@ -322,7 +322,7 @@ def _noise(c, d: DesignOptions, theta, ref, rig_filter) -> tuple[float, str]:
     if noise is not None and getattr(noise, "absolute_std", None):
         return float(noise.absolute_std), "backend absolute_std"
     if noise is not None and getattr(noise, "relative_std", 0) > 0:
-        from .solver import FitProblem
+        from mbus_framework.estimation.problem import FitProblem
 
         p = FitProblem(model=c.model, t=ref.t, u=ref.u, y=np.zeros_like(ref.u), output_filter=rig_filter,
                        hold=c.config.model.hold)

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import fft as sfft
 from scipy.stats import qmc
 
-from .solver import FitProblem, Progress
+from mbus_framework.estimation.problem import FitProblem, Progress
 
 
 class StrategyOptions(BaseModel):

@@ -7,9 +7,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .excitation import Waveform
-    from .run import Components
-    from .solver import FitProblem, FitResult
+    from mbus_framework.interfaces.excitation import Waveform
+    from mbus_framework.pipeline.run import Components
+    from mbus_framework.estimation.problem import FitProblem, FitResult
 
 
 def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from .model import Parameter, StateSpace
-from .simulation import simulate_ss, simulate_with_sensitivities
+from mbus_framework.interfaces.model import Parameter, StateSpace
+from mbus_framework.engine.simulation import simulate_ss, simulate_with_sensitivities
 
 GAIN = "input_gain"
 DELAY = "delay"
@@ -97,7 +97,7 @@ def delayed_prediction(model, theta, u, dt, gain: float, delay: float) -> np.nda
     """g * y_model(t_k - tau) for a ZOH input (exact)."""
     theta = np.asarray(theta, dtype=float)
     if delay == 0.0:
-        from .simulation import simulate
+        from mbus_framework.engine.simulation import simulate
 
         return gain * simulate(model, theta, u, dt)
     shift, s = _split_delay(delay, dt)

@@ -54,7 +54,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import fft as sfft
 
-from .errors import ConfigError, DataError
+from mbus_framework.errors import ConfigError, DataError
 
 FORMAT = "mbus-calibration/1"
 DEFAULT_LENGTHS = [0.0, 0.005, 0.010, 0.015, 0.020, 0.025]
@@ -471,7 +471,7 @@ class Calibration(_TransducerResponse):
 
 def save_calibration(path: str | Path, est: TransferEstimate, meta: dict[str, Any]) -> tuple[Path, Path]:
     """Write ``path`` (.npz arrays) and its JSON sidecar atomically; returns both paths."""
-    from .storage import atomic_write_json, atomic_write_npz
+    from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_npz
 
     path = Path(path)
     if path.suffix.lower() != ".npz":
@@ -526,7 +526,7 @@ def load_calibration(path: str | Path) -> Calibration:
 # The calibration run
 # ---------------------------------------------------------------------------------------------
 def parse_options(raw: dict | None, source: str) -> CalibrationOptions:
-    from .config import validate_options
+    from mbus_framework.pipeline.config import validate_options
 
     return validate_options(CalibrationOptions, raw or {}, "calibration", source)
 
@@ -553,11 +553,11 @@ def run_calibration(config_path, overrides=None, out_dir=None, progress=None) ->
 
     Returns a readable summary. Files go to ``out_dir`` (default: a new run folder).
     """
-    from .backend import AcquisitionContext
-    from .config import load_config
-    from .run import build_components, new_run_dir
-    from .sample import Sample
-    from .storage import atomic_write_json, atomic_write_text, write_waveforms
+    from mbus_framework.interfaces.backend import AcquisitionContext
+    from mbus_framework.pipeline.config import load_config
+    from mbus_framework.pipeline.run import build_components, new_run_dir
+    from mbus_framework.interfaces.sample import Sample
+    from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
     import yaml
 
     source = str(config_path)

@@ -3,7 +3,7 @@
 * :func:`to_control` exports a medium model at parameters theta as a ``control.StateSpace``,
   continuous (dz/dt = A z + B u, y = C z + D u) or discrete with zero-order hold at dt
   (z[k+1] = Phi z[k] + Gamma u[k], Phi = e^{A dt}, Gamma = int_0^dt e^{A s} ds B, the exact
-  discretisation used by :mod:`mbus_framework.simulation`).
+  discretisation used by :mod:`mbus_framework.engine.simulation`).
 * :func:`frequency_response` evaluates H(j 2 pi f) = C (j 2 pi f I - A)^-1 B + D, or the ZOH
   discrete H(e^{j 2 pi f dt}) when dt is given, at frequencies f [Hz] (output force per
   input force, dimensionless).
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import MediumModel
-from .simulation import as_float_ss, discretize
+from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.engine.simulation import as_float_ss, discretize
 
 
 def to_control(model: MediumModel, theta, dt: float | None = None):

@@ -29,9 +29,9 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from scipy import stats
 
-from .model import MediumModel
-from .solver import FitProblem, FitResult, Solver
-from .uncertainty import from_jacobian
+from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.estimation.problem import FitProblem, FitResult, Solver
+from mbus_framework.estimation.uncertainty import from_jacobian
 
 CRITERIA = ("bic", "aic")
 
@@ -39,7 +39,7 @@ CRITERIA = ("bic", "aic")
 @dataclass
 class ComparisonData:
     """The shared record: t [s] (uniform), input u, output y; hold and output filter as in
-    :class:`~mbus_framework.solver.FitProblem`."""
+    :class:`~mbus_framework.estimation.problem.FitProblem`."""
 
     t: np.ndarray
     u: np.ndarray
@@ -296,7 +296,7 @@ def _jsonable(obj):
 def build_candidate(registry, name: str, sample, base_options: Mapping[str, Any], source: str = "<config>") -> MediumModel:
     """Model ``name`` for ``sample``; options of the configured model that the other model
     also has (e.g. ``n_elements``) carry over, the rest take that model's defaults."""
-    from .config import validate_options
+    from mbus_framework.pipeline.config import validate_options
 
     spec = registry.get("model", name)
     opts_cls = spec.implementation.Options
@@ -321,16 +321,16 @@ def run_comparison(
     comparison.txt, comparison.json (and comparison_bode.png) into the run folder."""
     import yaml
 
-    from .config import load_config
-    from .control_interop import write_bode_plot
-    from .registry import default_registry
-    from .run import acquire, build_components, new_run_dir
-    from .storage import atomic_write_json, atomic_write_text
+    from mbus_framework.pipeline.config import load_config
+    from mbus_framework.engine.control_interop import write_bode_plot
+    from mbus_framework.interfaces.registry import default_registry
+    from mbus_framework.pipeline.run import acquire, build_components, new_run_dir
+    from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text
 
     source = str(config_path)
     names = [n.strip() for n in model_names if n.strip()]
     if not names:
-        from .errors import ConfigError
+        from mbus_framework.errors import ConfigError
 
         raise ConfigError("--compare-models: give at least one model name")
     config = load_config(config_path, list(overrides or []))

@@ -1,0 +1,90 @@
+"""Registry: the implementations the plugin manager collected, looked up by kind and name."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mbus_framework.errors import PluginError
+from mbus_framework.interfaces.hookspecs import HOOKS_BY_KIND, SPEC_BY_KIND, PluginSpec
+from mbus_framework.interfaces.plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager, one_line_error
+from mbus_framework.suggest import choices_text, did_you_mean
+
+KIND_BASES = {
+    "model": ("mbus_framework.interfaces.model", "MediumModel"),
+    "excitation": ("mbus_framework.interfaces.excitation", "Excitation"),
+    "solver": ("mbus_framework.estimation.problem", "Solver"),
+    "compensator": ("mbus_framework.interfaces.compensator", "Compensator"),
+    "backend": ("mbus_framework.interfaces.backend", "Backend"),
+}
+
+
+@dataclass(frozen=True)
+class Entry:
+    spec: PluginSpec
+    plugin: str  # registering plugin name (entry-point name)
+    source: str  # distribution / where it came from
+
+
+@dataclass
+class Registry:
+    entries: dict[str, dict[str, Entry]] = field(default_factory=dict)
+    broken: list[BrokenPlugin] = field(default_factory=list)
+
+    @classmethod
+    def from_manager(cls, pm: MbusPluginManager) -> "Registry":
+        import importlib
+
+        reg = cls({kind: {} for kind in HOOKS_BY_KIND}, list(pm.broken))
+        for kind, hook_name in HOOKS_BY_KIND.items():
+            module, base_name = KIND_BASES[kind]
+            base = getattr(importlib.import_module(module), base_name)
+            hook = getattr(pm.hook, hook_name)
+            for impl in hook.get_hookimpls():
+                plugin_name = pm.get_name(impl.plugin) or "?"
+                source = pm.sources.get(plugin_name, "registered in code")
+                try:
+                    specs = impl.function() or []
+                    for spec in specs:
+                        _check_spec(spec, kind, base)
+                except Exception as exc:  # noqa: BLE001 - report and skip the broken plugin
+                    reg.broken.append(BrokenPlugin(plugin_name, source, f"{hook_name}: {one_line_error(exc)}"))
+                    continue
+                for spec in specs:
+                    clash = reg.entries[kind].get(spec.name)
+                    if clash is not None:
+                        raise PluginError(
+                            f"{kind} '{spec.name}' is registered twice: by {clash.plugin} ({clash.source}) "
+                            f"and by {plugin_name} ({source}); uninstall or block one of them"
+                        )
+                    reg.entries[kind][spec.name] = Entry(spec, plugin_name, source)
+        return reg
+
+    def names(self, kind: str) -> list[str]:
+        return sorted(self.entries[kind])
+
+    def get(self, kind: str, name: str) -> PluginSpec:
+        try:
+            return self.entries[kind][name].spec
+        except KeyError:
+            choices = self.names(kind)
+            raise PluginError(
+                f"unknown {kind} '{name}'{did_you_mean(name, choices)}; choose one of: {choices_text(choices)}"
+            ) from None
+
+
+def _check_spec(spec: object, kind: str, base: type) -> None:
+    expected = SPEC_BY_KIND[kind]
+    if not isinstance(spec, expected):
+        raise TypeError(f"expected {expected.__name__} records, got {type(spec).__name__}")
+    if not (isinstance(spec.implementation, type) and issubclass(spec.implementation, base)):
+        raise TypeError(f"{spec.name}: implementation must subclass {base.__name__}")
+
+
+_default: Registry | None = None
+
+
+def default_registry() -> Registry:
+    """Registry over the cached process-wide plugin manager."""
+    global _default
+    if _default is None:
+        _default = Registry.from_manager(get_plugin_manager())
+    return _default

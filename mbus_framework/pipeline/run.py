@@ -1,0 +1,201 @@
+"""One identification run, flowing one way:
+
+config -> components -> acquisition (saved to disk first) -> compensation -> estimation
+-> result.json -> report.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
+from mbus_framework.interfaces.compensator import Compensator
+from mbus_framework.pipeline.config import RunConfig, load_config, validate_options
+from mbus_framework.errors import ConfigError, EstimationError
+from mbus_framework.interfaces.excitation import Excitation, Waveform
+from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.estimation.nuisance import NuisanceSettings
+from mbus_framework.interfaces.registry import Registry, default_registry
+from mbus_framework.pipeline.results import build_result
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.estimation.problem import FitProblem, FitResult, Progress, Solver
+from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
+from mbus_framework.suggest import did_you_mean
+
+MEASUREMENT_FILE = "measurement.csv"
+
+
+@dataclass
+class Components:
+    """The configured plugin instances of one run."""
+
+    config: RunConfig
+    source: str
+    registry: Registry
+    sample: Sample
+    model: MediumModel
+    excitation: Excitation
+    backend: Backend
+    compensator: Compensator
+    solver: Solver
+
+
+@dataclass
+class RunOutcome:
+    run_dir: Path
+    components: Components
+    measurement: Measurement
+    fit: FitResult
+    result: dict[str, Any]
+
+
+def build_components(config: RunConfig, source: str = "<config>", registry: Registry | None = None) -> Components:
+    """Stage-2 validation: look up every plugin and validate its options."""
+    registry = registry or default_registry()
+
+    def make(kind: str, ref, section: str, *args):
+        spec = registry.get(kind, ref.name)
+        options = validate_options(spec.implementation.Options, ref.options, f"{section}.options", source)
+        return spec.implementation(*args, options)
+
+    def named(kind: str, ref, section: str, *args):
+        try:
+            return make(kind, ref, section, *args)
+        except ConfigError:
+            raise
+        except Exception as exc:
+            from mbus_framework.errors import MbusError
+
+            if isinstance(exc, MbusError):
+                raise type(exc)(f"{source}: {section}.name: {exc}") from None
+            raise
+
+    sample = Sample(config.sample.length, config.sample.diameter, config.sample.density)
+    model = named("model", config.model, "model", sample)
+    _check_parameter_names(model, config.model.fixed, "model.fixed", source)
+    return Components(
+        config=config,
+        source=source,
+        registry=registry,
+        sample=sample,
+        model=model,
+        excitation=named("excitation", config.excitation, "excitation"),
+        backend=named("backend", config.backend, "backend"),
+        compensator=named("compensator", config.compensator, "compensator"),
+        solver=named("solver", config.solver, "solver"),
+    )
+
+
+def _check_parameter_names(model: MediumModel, mapping: dict, where: str, source: str) -> None:
+    for name in mapping:
+        if name not in model.parameter_names:
+            hint = did_you_mean(name, model.parameter_names)
+            raise ConfigError(
+                f"{source}: {where}.{name}: not a parameter of model '{type(model).__name__}'{hint}; "
+                f"parameters: {', '.join(model.parameter_names)}"
+            )
+
+
+def new_run_dir(config: RunConfig, source: str) -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(config.output.directory) / f"{stamp}-{Path(source).stem}"
+    path, k = base, 1
+    while path.exists():
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
+    return path
+
+
+def acquire(c: Components, run_dir: Path, waveform: Waveform) -> Measurement:
+    """Acquire and write the raw record (and its metadata) before anything is fitted."""
+    context = AcquisitionContext(waveform, c.sample, c.model, c.registry, run_dir, c.source)
+    m = c.backend.acquire(context)
+    write_waveforms(run_dir / MEASUREMENT_FILE, m.t, m.u, m.y)
+    atomic_write_json(run_dir / "measurement.json", {"truth": m.truth, "meta": m.meta, "n_samples": len(m.t), "dt_s": m.dt})
+    return m
+
+
+def nuisance_settings(config: RunConfig) -> NuisanceSettings:
+    n = config.nuisance
+    return NuisanceSettings(
+        estimate_gain=n.input_gain.estimate,
+        gain=1.0 if n.input_gain.value is None else n.input_gain.value,
+        estimate_delay=n.delay.estimate,
+        delay=0.0 if n.delay.value is None else n.delay.value,
+        max_delay=n.max_delay,
+    )
+
+
+def make_problem(c: Components, m: Measurement) -> FitProblem:
+    nuisance = nuisance_settings(c.config)
+    initial = None
+    if c.config.model.initial:
+        initial = c.model.theta_from_mapping(c.config.model.initial, f"{c.source}: model.initial")
+        if nuisance.active:
+            initial = np.r_[initial, nuisance.gain, nuisance.delay]
+    if nuisance.active and c.config.model.hold != "zoh":
+        raise ConfigError(f"{c.source}: nuisance: an input gain or delay needs model.hold: zoh")
+    return FitProblem(
+        model=c.model,
+        t=m.t,
+        u=m.u,
+        y=m.y,
+        initial=initial,
+        fixed=dict(c.config.model.fixed),
+        hold=c.config.model.hold,
+        output_filter=c.compensator.output_filter(),
+        nuisance=nuisance,
+    )
+
+
+def write_trace(path: Path, fit: FitResult) -> None:
+    """Convergence trace (Fig. 3.8): iteration, stage, cost, then one column per parameter."""
+    lines = [",".join(["iteration", "stage", "cost", *fit.names])]
+    for rec in fit.trace:
+        values = ",".join(f"{v:.17g}" for v in rec["theta"])
+        lines.append(f"{rec['iteration']},{rec.get('stage', '')},{rec['cost']:.17g},{values}")
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def execute(
+    config_path: str | Path,
+    overrides: list[str] | None = None,
+    out_dir: str | Path | None = None,
+    progress: Progress | None = None,
+    registry: Registry | None = None,
+    plots: bool | None = None,
+) -> RunOutcome:
+    """Run one identification from a config file; returns everything it produced."""
+    source = str(config_path)
+    config = load_config(config_path, overrides)
+    c = build_components(config, source, registry)
+    if c.config.model.initial:  # fail on bad initial values before acquiring anything
+        c.model.theta_from_mapping(c.config.model.initial, f"{source}: model.initial")
+    waveform = c.excitation.waveform()
+    run_dir = Path(out_dir) if out_dir else new_run_dir(config, source)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
+
+    measurement = acquire(c, run_dir, waveform)
+    compensated = c.compensator.apply(measurement)
+    problem = make_problem(c, compensated)
+    try:
+        fit = c.solver.solve(problem, progress)
+    except np.linalg.LinAlgError as exc:
+        raise EstimationError(f"{source}: estimation failed: {exc}") from None
+    result = build_result(c, measurement, problem, fit, waveform, compensated.meta.get("compensation"))
+    if fit.trace:
+        write_trace(run_dir / "trace.csv", fit)
+        result["files"]["trace"] = "trace.csv"
+    atomic_write_json(run_dir / "result.json", result)
+    if plots if plots is not None else config.output.plots:
+        from mbus_framework.pipeline.report import write_plots
+
+        result["files"].update(write_plots(run_dir, c, problem, fit, waveform))
+        atomic_write_json(run_dir / "result.json", result)
+    return RunOutcome(run_dir, c, measurement, fit, result)
