@@ -113,7 +113,7 @@ def main(argv=None) -> int:
 
     import casadi
 
-    from mbus_framework.studies._studies_tmp import machine_info
+    from mbus_framework.studies.common import machine_info
     from mbus_framework.estimation.uncertainty import from_jacobian
     from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 

@@ -221,7 +221,7 @@ def run_case(args: tuple) -> dict:
     if fit is None:
         out.update(within_3se=False, within_3se_untruncated=False, global_minimum=False)
         return out
-    from mbus_framework.studies._studies_tmp import covariance_from_jacobian
+    from mbus_framework.studies.monte_carlo import covariance_from_jacobian
 
     unc = from_jacobian(names, fit.jacobian, fit.cost)
     se = unc.standard_errors
@@ -308,7 +308,7 @@ def summarise(cases: list[dict], wall: float, workers: int) -> dict:
 
 
 def machine() -> dict:
-    from mbus_framework.studies._studies_tmp import machine_info
+    from mbus_framework.studies.common import machine_info
 
     return machine_info()
 

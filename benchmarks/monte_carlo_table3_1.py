@@ -49,7 +49,7 @@ def _flow(d: dict) -> str:
 
 def monte_carlo(n_seeds: int, study_dir: Path) -> dict:
     from mbus_framework.pipeline.progress import make_progress
-    from mbus_framework.studies._studies_tmp import run_study
+    from mbus_framework.studies.runner import run_study
 
     study = run_study("monte_carlo", CONFIG, [], study_dir, progress=make_progress(), n_runs=n_seeds)
     print(study.text)
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.n_seeds < 50:
         print("note: the target asks for at least 50 seeds", file=sys.stderr)
-    from mbus_framework.studies._studies_tmp import machine_info
+    from mbus_framework.studies.common import machine_info
 
     with tempfile.TemporaryDirectory(prefix="mbus-bench-") as tmp:
         tmp = Path(tmp)

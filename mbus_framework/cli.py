@@ -87,7 +87,8 @@ def list_plugins() -> str:
 def _special_mode(args, progress) -> str | None:
     """Studies, model comparison, excitation design and calibration runs; None for a plain fit."""
     if args.study:
-        from mbus_framework.studies._studies_tmp import parse_study_options, run_study
+        from mbus_framework.studies.options import parse_study_options
+        from mbus_framework.studies.runner import run_study
 
         result = run_study(
             args.study, args.config, args.overrides, args.out, progress, **parse_study_options(args.study_options)

@@ -10,20 +10,22 @@ import numpy as np
 import pytest
 import yaml
 
-from mbus_framework.interfaces.backend import AcquisitionContext
-from mbus_framework.studies.transducer_calibration import (
+from mbus_framework.compensation.calibration_file import (
+    load_calibration,
+    save_calibration,
+)
+from mbus_framework.compensation.transfer import (
     compare_with_truth,
     estimate_transfer,
-    load_calibration,
-    run_calibration,
-    save_calibration,
     two_length_estimate,
 )
-from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError, DataError
+from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
+from mbus_framework.pipeline.config import validate_options
+from mbus_framework.studies.transducer_calibration import run_calibration
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
 

@@ -7,11 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mbus_framework.interfaces.backend import Measurement
-from mbus_framework.studies.transducer_calibration import SpectralFilter, load_calibration, run_calibration
-from mbus_framework.pipeline.config import load_config, validate_options
+from mbus_framework.compensation.calibration_file import load_calibration
+from mbus_framework.compensation.filters import SpectralFilter
 from mbus_framework.errors import ConfigError, DataError
+from mbus_framework.interfaces.backend import Measurement
+from mbus_framework.pipeline.config import load_config, validate_options
 from mbus_framework.pipeline.run import build_components, execute
+from mbus_framework.studies.transducer_calibration import run_calibration
 from plugins.compensators.transfer_function import (
     TransferFunctionCompensator,
     TransferFunctionOptions,

@@ -9,11 +9,17 @@ import numpy as np
 import pytest
 import yaml
 
-from mbus_framework.studies.transducer_calibration import SpectralFilter
-from mbus_framework.studies.design import X_STAR, fisher_logdet, propose_prbs, rank_excitations, run_design
+from mbus_framework.compensation.filters import SpectralFilter
 from mbus_framework.errors import ConfigError
-from mbus_framework.interfaces.sample import Sample
 from mbus_framework.estimation.problem import FitProblem
+from mbus_framework.interfaces.sample import Sample
+from mbus_framework.studies.design import (
+    X_STAR,
+    fisher_logdet,
+    propose_prbs,
+    rank_excitations,
+    run_design,
+)
 from plugins.backends.transducers import TransducerPair, TransducerPairOptions
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions

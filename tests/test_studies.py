@@ -1,5 +1,5 @@
 """Studies (issue 4, item 6): every table statistic is recomputed here from the per-run
-result.json files the study leaves behind, independently of mbus_framework.studies._studies_tmp."""
+result.json files the study leaves behind, independently of mbus_framework.studies."""
 from __future__ import annotations
 
 import csv
@@ -11,14 +11,10 @@ import pytest
 import yaml
 
 from mbus_framework.errors import ConfigError
-from mbus_framework.studies._studies_tmp import (
-    StudyResult,
-    parse_int_list,
-    parse_study_options,
-    run_study,
-    settle_index,
-    validate_study_options,
-)
+from mbus_framework.studies.common import StudyResult
+from mbus_framework.studies.element_sweep import settle_index
+from mbus_framework.studies.options import parse_int_list, parse_study_options, validate_study_options
+from mbus_framework.studies.runner import run_study
 
 SMALL = Path(__file__).parent / "data" / "studies_small.yaml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -98,7 +94,7 @@ def test_settle_index():
 
 # -- Monte Carlo ---------------------------------------------------------------------------
 def test_monte_carlo_statistics_on_known_numbers():
-    from mbus_framework.studies._studies_tmp import monte_carlo_statistics
+    from mbus_framework.studies.monte_carlo import monte_carlo_statistics
 
     est = np.array([9.0, 10.5, 11.0, 12.0, 10.0])
     se = np.array([0.4, 0.5, 1.0, 0.5, 0.1])

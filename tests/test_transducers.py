@@ -5,15 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mbus_framework.interfaces.backend import AcquisitionContext
-from mbus_framework.studies.transducer_calibration import SpectralFilter, hold_response
-from mbus_framework.pipeline.config import validate_options
+from mbus_framework.compensation.filters import SpectralFilter
+from mbus_framework.compensation.transfer import hold_response
+from mbus_framework.engine.simulation import simulate, simulate_ss
 from mbus_framework.errors import ConfigError
+from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
-from mbus_framework.engine.simulation import simulate, simulate_ss
-from plugins.backends.transducers import BandPass, TransducerPair, TransducerPairOptions, series
+from mbus_framework.pipeline.config import validate_options
+from plugins.backends.transducers import (
+    BandPass,
+    TransducerPair,
+    TransducerPairOptions,
+    series,
+)
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 

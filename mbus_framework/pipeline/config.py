@@ -137,10 +137,10 @@ class RunConfig(_Strict):
     nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
     calibration: dict[str, Any] | None = Field(
-        None, description="makes the run a transducer calibration (see mbus_framework.studies._studies_tmp.transducer_calibration)"
+        None, description="makes the run a transducer calibration (see mbus_framework.studies.transducer_calibration)"
     )
     design: dict[str, Any] | None = Field(
-        None, description="options of --design-excitation (see mbus_framework.studies._studies_tmp.design)"
+        None, description="options of --design-excitation (see mbus_framework.studies.design)"
     )
     output: OutputConfig = Field(default_factory=OutputConfig)
 

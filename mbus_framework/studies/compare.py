@@ -29,9 +29,9 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from scipy import stats
 
-from mbus_framework.interfaces.model import MediumModel
 from mbus_framework.estimation.problem import FitProblem, FitResult, Solver
 from mbus_framework.estimation.uncertainty import from_jacobian
+from mbus_framework.interfaces.model import MediumModel
 
 CRITERIA = ("bic", "aic")
 
@@ -321,9 +321,9 @@ def run_comparison(
     comparison.txt, comparison.json (and comparison_bode.png) into the run folder."""
     import yaml
 
-    from mbus_framework.pipeline.config import load_config
     from mbus_framework.engine.control_interop import write_bode_plot
     from mbus_framework.interfaces.registry import default_registry
+    from mbus_framework.pipeline.config import load_config
     from mbus_framework.pipeline.run import acquire, build_components, new_run_dir
     from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text
 

@@ -152,8 +152,8 @@ def rank_excitations(
     hold: str = "zoh",
 ) -> list[Ranked]:
     """Rank (label, plugin name, options, Waveform) by log det of the Fisher information."""
-    from mbus_framework.interfaces.excitation import crest_factor, power_spectrum
     from mbus_framework.estimation.problem import FitProblem
+    from mbus_framework.interfaces.excitation import crest_factor, power_spectrum
 
     out = []
     for label, name, options, w in waveforms:
@@ -183,7 +183,11 @@ def rank_excitations(
 
 
 def _split_design(config_path, overrides) -> tuple[dict, DesignOptions]:
-    from mbus_framework.pipeline.config import apply_overrides, read_yaml, validate_options
+    from mbus_framework.pipeline.config import (
+        apply_overrides,
+        read_yaml,
+        validate_options,
+    )
 
     data = apply_overrides(read_yaml(config_path), overrides or [])
     raw = data.pop("design", None)
@@ -296,9 +300,8 @@ def _nominal(c, d: DesignOptions, source: str) -> tuple[np.ndarray, str]:
 
 def _rig(c, d: DesignOptions, source: str):
     """(output filter or None, description, |G_TR| function for the plot or None)."""
-    from mbus_framework.studies.transducer_calibration import load_calibration
-
-    from mbus_framework.studies.transducer_calibration import SpectralFilter as spectral
+    from mbus_framework.compensation.calibration_file import load_calibration
+    from mbus_framework.compensation.filters import SpectralFilter as spectral
 
     if d.calibration:
         cal = load_calibration(d.calibration)

@@ -41,10 +41,14 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import fft as sfft
 from scipy.ndimage import uniform_filter1d
 
-from mbus_framework.interfaces.backend import Measurement
-from mbus_framework.studies.transducer_calibration import Calibration, SpectralFilter, coloured_noise_standard_errors, load_calibration
-from mbus_framework.interfaces.compensator import Compensator
+from mbus_framework.compensation.calibration_file import Calibration, load_calibration
+from mbus_framework.compensation.filters import (
+    SpectralFilter,
+    coloured_noise_standard_errors,
+)
 from mbus_framework.errors import ConfigError, DataError
+from mbus_framework.interfaces.backend import Measurement
+from mbus_framework.interfaces.compensator import Compensator
 from mbus_framework.interfaces.hookspecs import CompensatorSpec, hookimpl
 
 
