@@ -4,7 +4,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 from pydantic import BaseModel
@@ -14,7 +14,6 @@ from mbus_framework.interfaces.model import NoOptions
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.excitation import Waveform
     from mbus_framework.interfaces.model import MediumModel
-    from mbus_framework.interfaces.registry import Registry
     from mbus_framework.interfaces.sample import Sample
 
 
@@ -37,6 +36,12 @@ class Measurement:
         return float(self.t[1] - self.t[0])
 
 
+class PluginLookup(Protocol):
+    """What a backend may use of the plugin registry (``mbus_framework.registry.Registry``)."""
+
+    def get(self, kind: str, name: str) -> Any: ...
+
+
 @dataclass
 class AcquisitionContext:
     """What a backend may need: the designed excitation, the sample, the fitted model and
@@ -46,7 +51,7 @@ class AcquisitionContext:
     excitation: "Waveform"
     sample: "Sample"
     model: "MediumModel"
-    registry: "Registry"
+    registry: PluginLookup
     run_dir: Path | None = None
     config_path: str = "<config>"
 

@@ -23,7 +23,7 @@ and the module defines, for example::
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import pluggy
 
@@ -31,12 +31,6 @@ PROJECT = "mbus_framework"
 hookspec = pluggy.HookspecMarker(PROJECT)
 hookimpl = pluggy.HookimplMarker(PROJECT)
 
-if TYPE_CHECKING:  # pragma: no cover
-    from mbus_framework.interfaces.backend import Backend
-    from mbus_framework.interfaces.compensator import Compensator
-    from mbus_framework.interfaces.excitation import Excitation
-    from mbus_framework.interfaces.model import MediumModel
-    from mbus_framework.estimation.problem import Solver
 
 
 @dataclass(frozen=True)
@@ -51,31 +45,31 @@ class PluginSpec:
 
 @dataclass(frozen=True)
 class MediumModelSpec(PluginSpec):
-    implementation: type["MediumModel"]
+    implementation: type  # a subclass of mbus_framework.model.MediumModel
     kind: ClassVar[str] = "model"
 
 
 @dataclass(frozen=True)
 class ExcitationSpec(PluginSpec):
-    implementation: type["Excitation"]
+    implementation: type  # a subclass of mbus_framework.excitation.Excitation
     kind: ClassVar[str] = "excitation"
 
 
 @dataclass(frozen=True)
 class SolverSpec(PluginSpec):
-    implementation: type["Solver"]
+    implementation: type  # a subclass of mbus_framework.solver.Solver
     kind: ClassVar[str] = "solver"
 
 
 @dataclass(frozen=True)
 class CompensatorSpec(PluginSpec):
-    implementation: type["Compensator"]
+    implementation: type  # a subclass of mbus_framework.compensator.Compensator
     kind: ClassVar[str] = "compensator"
 
 
 @dataclass(frozen=True)
 class BackendSpec(PluginSpec):
-    implementation: type["Backend"]
+    implementation: type  # a subclass of mbus_framework.backend.Backend
     kind: ClassVar[str] = "backend"
 
 

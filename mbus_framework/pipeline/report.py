@@ -8,7 +8,7 @@ import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.excitation import Waveform
-    from mbus_framework.pipeline.run import Components
+    from mbus_framework.pipeline.components import Components
     from mbus_framework.estimation.problem import FitProblem, FitResult
 
 

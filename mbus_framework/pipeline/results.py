@@ -15,7 +15,7 @@ from mbus_framework.estimation.uncertainty import from_jacobian, property_covari
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
     from mbus_framework.interfaces.excitation import Waveform
-    from mbus_framework.pipeline.run import Components
+    from mbus_framework.pipeline.components import Components
     from mbus_framework.estimation.problem import FitProblem, FitResult
 
 

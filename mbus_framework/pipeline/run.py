@@ -13,36 +13,18 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
-from mbus_framework.interfaces.compensator import Compensator
-from mbus_framework.pipeline.config import RunConfig, load_config, validate_options
+from mbus_framework.interfaces.backend import AcquisitionContext, Measurement
+from mbus_framework.pipeline.config import RunConfig, load_config
 from mbus_framework.errors import ConfigError, EstimationError
-from mbus_framework.interfaces.excitation import Excitation, Waveform
-from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.estimation.nuisance import NuisanceSettings
-from mbus_framework.interfaces.registry import Registry, default_registry
+from mbus_framework.interfaces.registry import Registry
+from mbus_framework.pipeline.components import Components, build_components
 from mbus_framework.pipeline.results import build_result
-from mbus_framework.interfaces.sample import Sample
-from mbus_framework.estimation.problem import FitProblem, FitResult, Progress, Solver
+from mbus_framework.estimation.problem import FitProblem, FitResult, Progress
 from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
-from mbus_framework.suggest import did_you_mean
 
 MEASUREMENT_FILE = "measurement.csv"
-
-
-@dataclass
-class Components:
-    """The configured plugin instances of one run."""
-
-    config: RunConfig
-    source: str
-    registry: Registry
-    sample: Sample
-    model: MediumModel
-    excitation: Excitation
-    backend: Backend
-    compensator: Compensator
-    solver: Solver
 
 
 @dataclass
@@ -52,53 +34,6 @@ class RunOutcome:
     measurement: Measurement
     fit: FitResult
     result: dict[str, Any]
-
-
-def build_components(config: RunConfig, source: str = "<config>", registry: Registry | None = None) -> Components:
-    """Stage-2 validation: look up every plugin and validate its options."""
-    registry = registry or default_registry()
-
-    def make(kind: str, ref, section: str, *args):
-        spec = registry.get(kind, ref.name)
-        options = validate_options(spec.implementation.Options, ref.options, f"{section}.options", source)
-        return spec.implementation(*args, options)
-
-    def named(kind: str, ref, section: str, *args):
-        try:
-            return make(kind, ref, section, *args)
-        except ConfigError:
-            raise
-        except Exception as exc:
-            from mbus_framework.errors import MbusError
-
-            if isinstance(exc, MbusError):
-                raise type(exc)(f"{source}: {section}.name: {exc}") from None
-            raise
-
-    sample = Sample(config.sample.length, config.sample.diameter, config.sample.density)
-    model = named("model", config.model, "model", sample)
-    _check_parameter_names(model, config.model.fixed, "model.fixed", source)
-    return Components(
-        config=config,
-        source=source,
-        registry=registry,
-        sample=sample,
-        model=model,
-        excitation=named("excitation", config.excitation, "excitation"),
-        backend=named("backend", config.backend, "backend"),
-        compensator=named("compensator", config.compensator, "compensator"),
-        solver=named("solver", config.solver, "solver"),
-    )
-
-
-def _check_parameter_names(model: MediumModel, mapping: dict, where: str, source: str) -> None:
-    for name in mapping:
-        if name not in model.parameter_names:
-            hint = did_you_mean(name, model.parameter_names)
-            raise ConfigError(
-                f"{source}: {where}.{name}: not a parameter of model '{type(model).__name__}'{hint}; "
-                f"parameters: {', '.join(model.parameter_names)}"
-            )
 
 
 def new_run_dir(config: RunConfig, source: str) -> Path:
