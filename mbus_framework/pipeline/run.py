@@ -6,15 +6,16 @@ config -> components -> acquisition (saved to disk first) -> compensation -> est
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import yaml
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Measurement
-from mbus_framework.pipeline.config import RunConfig, load_config
+from mbus_framework.pipeline.config import RunConfig, apply_overrides, load_config, validate_structure
 from mbus_framework.errors import ConfigError, EstimationError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.estimation.nuisance import NuisanceSettings
@@ -38,7 +39,8 @@ class RunOutcome:
 
 def new_run_dir(config: RunConfig, source: str) -> Path:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path(config.output.directory) / f"{stamp}-{Path(source).stem}"
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(source).stem).strip("_.") or "run"
+    base = Path(config.output.directory) / f"{stamp}-{name}"
     path, k = base, 1
     while path.exists():
         k += 1
@@ -98,16 +100,23 @@ def write_trace(path: Path, fit: FitResult) -> None:
 
 
 def execute(
-    config_path: str | Path,
+    config_path: str | Path | Mapping[str, Any],
     overrides: list[str] | None = None,
     out_dir: str | Path | None = None,
     progress: Progress | None = None,
     registry: Registry | None = None,
     plots: bool | None = None,
+    source: str | None = None,
 ) -> RunOutcome:
-    """Run one identification from a config file; returns everything it produced."""
-    source = str(config_path)
-    config = load_config(config_path, overrides)
+    """Run one identification from a config file, or from a config mapping (``source`` names
+    it in error messages and the default run-folder name); returns everything it produced."""
+    if isinstance(config_path, Mapping):
+        source = source or "<config>"
+        data = apply_overrides(dict(config_path), overrides or [])
+        config = validate_structure(data, source)
+    else:
+        source = source or str(config_path)
+        config = load_config(config_path, overrides)
     c = build_components(config, source, registry)
     if c.config.model.initial:  # fail on bad initial values before acquiring anything
         c.model.theta_from_mapping(c.config.model.initial, f"{source}: model.initial")
