@@ -186,7 +186,7 @@ def table_6_2(analysis: CalibrationAnalysis):
     blocks = {"Conventionally measured": {p: describe(conv.get(PREFIX + p, [])) for p in analysis.properties}}
     for variant in analysis.variants:
         rows = analysis.rows[variant]
-        blocks[f"MBUS {variant}"] = {p: describe(rows[p]) if p in rows.columns else [np.nan] * 4
+        blocks["MBUS" if variant == "MBUS" else f"MBUS {variant}"] = {p: describe(rows[p]) if p in rows.columns else [np.nan] * 4
                                      for p in analysis.properties}
     index = pd.MultiIndex.from_tuples([(b, s) for b in blocks for s in stats], names=["measurement", "statistic"])
     data = [[blocks[b][p][i] for p in analysis.properties] for b in blocks for i in range(4)]

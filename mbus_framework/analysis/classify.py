@@ -147,7 +147,10 @@ def lda_loo_predict(X: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
 
 
 def _run(method: str, X: np.ndarray, labels: np.ndarray, k: int, restarts: int, seed: int):
-    with warnings.catch_warnings(record=True) as caught:
+    from threadpoolctl import threadpool_limits
+
+    # a few dozen samples: OpenMP/BLAS threads only add start-up cost (and contend on shared machines)
+    with threadpool_limits(1), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if method == "kmeans":
             predicted = kmeans_predict(X, labels, k, restarts=restarts, seed=seed)

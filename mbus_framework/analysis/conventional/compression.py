@@ -82,7 +82,8 @@ def fit_sinusoid(t: np.ndarray, y: np.ndarray, omega: float, drift_degree: int =
     full = sm.OLS(y, design).fit()
     baseline = sm.OLS(y, drift).fit()
     cov = np.asarray(full.cov_params())[-2:, -2:]
-    explained = 1.0 - full.ssr / baseline.ssr if baseline.ssr > 0 else float("nan")
+    flat = baseline.ssr <= y.size * (1e-12 * max(float(np.abs(y).max()), np.finfo(float).tiny)) ** 2
+    explained = float("nan") if flat else 1.0 - full.ssr / baseline.ssr
     resid_std = float(np.sqrt(full.ssr / max(full.df_resid, 1.0)))
     return SinusoidFit(float(full.params[-2]), float(full.params[-1]), cov, float(explained), resid_std)
 

@@ -57,7 +57,7 @@ def interpolate_at(frequencies: np.ndarray, values: np.ndarray, f0: float) -> fl
     f_lo, f_hi = frequencies[i - 1], frequencies[i]
     v_lo, v_hi = values[i - 1], values[i]
     w = (math.log(f0) - math.log(f_lo)) / (math.log(f_hi) - math.log(f_lo))
-    if v_lo > 0 and v_hi > 0:
+    if np.all(values > 0):
         return float(math.exp((1 - w) * math.log(v_lo) + w * math.log(v_hi)))
     return float((1 - w) * v_lo + w * v_hi)
 
