@@ -171,7 +171,9 @@ def classify(df, by: str, sets: Sequence[Sequence[str]] | None = None, *, log: b
     used = list(dict.fromkeys(p for s in sets for p in s))
     require_columns(df, [by, *used], source)
     rows, counts = usable_rows(df, used)
+    unlabelled = int(rows[by].isna().sum())
     rows = rows[rows[by].notna()]
+    counts.update(missing=counts["missing"] + unlabelled, used=counts["used"] - unlabelled)
     groups = list(dict.fromkeys(rows[by].astype(str)))
     k = len(groups)
     if k < 2:

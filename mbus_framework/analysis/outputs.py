@@ -3,12 +3,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
-import numpy as np
-
 from mbus_framework.errors import DataError
+from mbus_framework.pipeline.storage import atomic_write_text, to_jsonable
 
 
 def output_dir(table: str | Path, out: str | Path | None, default_name: str) -> Path:
@@ -21,28 +19,18 @@ def output_dir(table: str | Path, out: str | Path | None, default_name: str) -> 
     return path
 
 
-def to_jsonable(obj):
-    """Plain Python for JSON: numpy scalars and arrays converted, NaN and infinities -> None."""
+def _standard(obj):
+    """NaN and infinities -> None (standard JSON), recursively."""
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        value = float(obj)
-        return value if math.isfinite(value) else None
+        return {k: _standard(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_standard(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
     return obj
 
 
 def write_json(path: str | Path, data) -> Path:
-    """Write ``data`` as indented JSON, atomically (temporary file, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
+    """Write ``data`` as indented standard JSON (numpy converted, NaN -> null), atomically."""
+    text = json.dumps(_standard(to_jsonable(data)), indent=2, allow_nan=False) + "\n"
+    return atomic_write_text(path, text)
