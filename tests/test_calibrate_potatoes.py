@@ -28,25 +28,22 @@ def _generator():
     return module
 
 
-def _campaign():
-    from mbus_framework.pipeline.config import read_yaml
-
-    return read_yaml(CAMPAIGN)["campaign"]
-
-
-def test_every_sample_config_validates():
+@pytest.mark.parametrize("name", ["potatoes.yaml", "potatoes_uncompensated.yaml"])
+def test_every_sample_config_validates(name):
     from mbus_framework.pipeline.components import build_components
     from mbus_framework.pipeline.config import apply_overrides, read_yaml, validate_structure
 
-    campaign = _campaign()
-    base = read_yaml(CAMPAIGN.parent / campaign["base"])
-    sheet = pd.read_csv(CAMPAIGN.parent / campaign["samples"])
+    path = CAMPAIGN.parent / name
+    campaign = read_yaml(path)["campaign"]
+    base = read_yaml(path.parent / campaign["base"]) if "base" in campaign else campaign["run"]
+    assert ("base" in campaign) != ("run" in campaign)
+    sheet = pd.read_csv(path.parent / campaign["samples"])
     assert len(sheet) == 30 and sheet.sample_id.is_unique
     keys = [c for c in sheet.columns if "." in c]
     assert set(sheet.columns) == {"sample_id", *keys, *campaign["groups"], *campaign["covariates"]}
     for _, row in sheet.iterrows():
         data = apply_overrides(base, [f"{k}={row[k]}" for k in keys], where=f"{row.sample_id}")
-        source = f"{CAMPAIGN}: {row.sample_id}"
+        source = f"{path}: {row.sample_id}"
         components = build_components(validate_structure(data, source), source)
         truth = components.backend.options.truth
         assert {p: truth[p] for p in PROPS} == {p: row[f"backend.options.truth.{p}"] for p in PROPS}

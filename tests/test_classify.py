@@ -169,3 +169,31 @@ def test_missing_values_are_counted_not_fatal(liquids):
     res = classify(df, "material")
     assert res.counts == {"rows": 25, "failed": 0, "missing": 1, "used": 24}
     assert layout_table(res).shape == (12, 7)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["liquids", "tissues"])
+def test_shipped_campaign_classification(tmp_path, name):
+    """End to end once the campaign runner and its virtual campaigns exist (issue 13, Done when)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from mbus_framework.pipeline.config import read_yaml
+
+    pytest.importorskip("mbus_framework.campaigns")
+    campaign = Path(__file__).resolve().parents[1] / "configs" / "campaigns" / f"{name}.yaml"
+    if not campaign.is_file():
+        pytest.skip(f"{campaign} not shipped")
+    by = read_yaml(campaign)["campaign"]["groups"][0]
+    run = subprocess.run([sys.executable, "-m", "mbus_framework.cli", str(campaign), "-o", str(tmp_path / "c"),
+                          "--no-plots", "-q"], capture_output=True, text=True, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    table = next((tmp_path / "c").rglob("properties.csv"))
+    assert main(["classify", str(table), "--by", by, "--out", str(tmp_path / "out")]) == 0
+    data = json.loads((tmp_path / "out" / "classification.json").read_text())
+    assert list(data["results"]["lda"]) == TABLE_4_4_COLUMNS
+    assert (tmp_path / "out" / "confusion_matrices.csv").is_file()
+    if name == "liquids":
+        assert data["rows"]["failed"] == 0
+        assert data["results"]["lda"][TABLE_4_4_COLUMNS[-1]]["percent_correct"] == 100.0
