@@ -155,7 +155,7 @@ def read_lab_run(path: Path, context_reference: Reference | None, processing: Pr
     t, u, y, meta = combine(shots, reference, processing, str(run.shot_dir))
     m = check_record(run.shot_dir, t, u, y)
     status = run.acquisition.get("status", "unknown")
-    warnings = []
+    warnings = list(meta.pop("warnings", []))
     if status != "complete":
         warnings.append(f"acquisition {status}: {len(shots)} of {run.acquisition.get('shots_requested', '?')} "
                         f"shots saved ({run.acquisition.get('error') or 'no error recorded'})")

@@ -243,12 +243,17 @@ def burst_start(u: np.ndarray, where: str) -> int:
     The onset is the first sample deviating from the first sample's level by more than 10 % of
     the largest deviation; it is then moved back while the samples before it still stand out of
     the pre-burst noise (3 robust standard deviations, 1.4826 x MAD, of the samples before the
-    onset), so a slowly rising burst keeps its start. The record must begin before the burst.
+    onset), so a slowly rising burst keeps its start. A record whose first sample is not at the
+    rest level (further than a quarter of the half-range from the channel's mid-range: a record
+    that starts inside the burst) starts at 0.
     """
     u = np.asarray(u, dtype=float)
     i = onset_index(u - u[0], 0.1)
     if i is None:
         raise DataError(f"{where}: the excitation channel is flat (no burst recorded)")
+    mid, half = (u.max() + u.min()) / 2, (u.max() - u.min()) / 2
+    if abs(u[0] - mid) > 0.25 * half:  # the first sample is at a burst level, not at rest
+        return 0
     pre = u[:i]
     base = float(np.median(pre)) if pre.size else float(u[0])
     noise = 1.4826 * float(np.median(np.abs(pre - base))) if pre.size >= 8 else 0.0
@@ -311,6 +316,9 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
                 u, y = u - u[:i].mean(), y - y[:i].mean()
             cuts.append((u[i:i + n], y[i:i + n]))
         meta.update(aligned="burst onset (no designed excitation)", burst_starts_samples=starts, window="record")
+        if 0 in starts:
+            meta["warnings"] = [f"{source}: the excitation channel is not at rest at the start of the record "
+                                f"(the burst began before it): fitted from the first sample, as if at rest"]
     else:
         n = shots[0].u.size
         cuts = [(s.u.astype(float), s.y.astype(float)) for s in shots]
