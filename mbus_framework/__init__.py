@@ -9,17 +9,17 @@ imported on first use, so plugins importing the interfaces do not load the pipel
 
     >>> import mbus_framework as mbus
     >>> sorted(mbus.__all__)
-    ['Estimate', 'Record', 'Result', 'fit', 'load_record', 'run']
+    ['Estimate', 'Record', 'Result', 'fit', 'load_record', 'run_config']
 """
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
-__all__ = ["Estimate", "Record", "Result", "fit", "load_record", "run"]
+__all__ = ["Estimate", "Record", "Result", "fit", "load_record", "run_config"]
 
 if TYPE_CHECKING:  # pragma: no cover
-    from mbus_framework.api import Estimate, Record, Result, fit, load_record, run  # noqa: F401
+    from mbus_framework.api import Estimate, Record, Result, fit, load_record, run_config  # noqa: F401
 
 
 def __getattr__(name: str) -> Any:

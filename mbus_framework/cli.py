@@ -3,7 +3,7 @@
     mbus-run CONFIG [-o OUTDIR] [--set dotted.key=value ...] [--no-plots] [--quiet]
     mbus-run --list-plugins
 
-A plain fit goes through the Python API (:func:`mbus_framework.run`), so the command line and
+A plain fit goes through the Python API (:func:`mbus_framework.run_config`), so the command line and
 Python produce the same run folder. User errors (bad config, bad data, instrument failure)
 print one line and exit non-zero (2 for input errors, 3 for instruments); a Python traceback
 means a bug.
@@ -127,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
-        from mbus_framework.api import run
+        from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
 
         progress = None if args.quiet else make_progress()
@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if special is not None:
             print(special)
             return 0
-        result = run(args.config, args.overrides, args.out, progress=progress if progress is not None else False,
+        result = run_config(args.config, args.overrides, args.out, progress=progress if progress is not None else False,
                      plots=False if args.no_plots else None)
         print(result.run_dir if args.quiet else result.summary())
         return 0

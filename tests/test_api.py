@@ -132,7 +132,7 @@ def test_fit_into_a_folder_that_mbus_run_refits(tmp_path, record, capsys):
 
 def test_run_with_overrides_matches_the_cli(tmp_path, capsys):
     config = REPO / "configs" / "recorded.yaml"
-    r = mbus.run(config, {"solver.options.strategy.n_starts": 2, "title": "api"}, tmp_path / "api", plots=False)
+    r = mbus.run_config(config, {"solver.options.strategy.n_starts": 2, "title": "api"}, tmp_path / "api", plots=False)
     assert main([str(config), "-o", str(tmp_path / "cli"), "--no-plots", "-q",
                  "--set", "solver.options.strategy.n_starts=2", "--set", "title=api"]) == 0
     cli = json.loads((tmp_path / "cli" / "result.json").read_text())
@@ -140,13 +140,13 @@ def test_run_with_overrides_matches_the_cli(tmp_path, capsys):
     assert r.document["title"] == "api" and r.run_dir == tmp_path / "api"
     mapping = {"sample": POTATO.sample, "model": {"name": "kelvin_voigt"},
                "backend": {"name": "file", "options": {"path": str(TUY)}}}
-    from_mapping = mbus.run(mapping, ["solver.options.strategy.n_starts=2", "title=api"], tmp_path / "map",
+    from_mapping = mbus.run_config(mapping, ["solver.options.strategy.n_starts=2", "title=api"], tmp_path / "map",
                             plots=False)
     assert from_mapping.document["parameters"] == pytest.approx(cli["parameters"], rel=1e-12)
 
 
 def test_result_load_rebuilds_the_figures_arrays(tmp_path):
-    r = mbus.run(REPO / "configs" / "recorded.yaml", out_dir=tmp_path / "run", plots=False)
+    r = mbus.run_config(REPO / "configs" / "recorded.yaml", out_dir=tmp_path / "run", plots=False)
     loaded = mbus.Result.load(tmp_path / "run")
     assert loaded.document == json.loads((tmp_path / "run" / "result.json").read_text())
     np.testing.assert_allclose(loaded.data.yhat, r.data.yhat, rtol=0, atol=1e-12 * np.abs(r.data.y).max())
@@ -186,5 +186,10 @@ def test_importing_the_interfaces_does_not_load_the_pipeline():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "False", out.stderr
     assert mbus.fit is mbus.api.fit and "fit" in dir(mbus)
+    import mbus_framework.pipeline.run
+    import mbus_framework.run  # the plugin authors' alias module keeps its name ...
+
+    assert mbus_framework.run is mbus_framework.pipeline.run
+    assert callable(mbus.run_config)  # ... and the API function has its own
     with pytest.raises(AttributeError, match="has no attribute 'fitt'"):
         mbus.fitt  # noqa: B018

@@ -63,7 +63,7 @@ def _override_list(overrides: Mapping[str, Any] | Sequence[str] | None) -> list[
     return list(overrides)
 
 
-def run(
+def run_config(
     config: str | Path | Mapping[str, Any],
     overrides: Mapping[str, Any] | Sequence[str] | None = None,
     out_dir: str | Path | None = None,

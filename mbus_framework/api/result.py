@@ -62,7 +62,7 @@ class Estimate:
 class Result:
     """One identification: estimates with uncertainty, warnings, fit quality and figures.
 
-    Made by :func:`mbus_framework.fit`, :func:`mbus_framework.run` or :meth:`Result.load`.
+    Made by :func:`mbus_framework.fit`, :func:`mbus_framework.run_config` or :meth:`Result.load`.
     ``document`` is the result.json mapping (schema in the documentation), ``run_dir`` the run
     folder (None for a fit kept in memory), ``data`` the arrays behind the figures.
     """
@@ -109,7 +109,7 @@ class Result:
         se, ci, truth = unc.get("standard_errors", {}), unc.get("ci95", {}), d.get("truth", {})
         return {
             n: Estimate(n, float(v), d.get("parameter_units", {}).get(n, ""), _opt(se.get(n)),
-                        tuple(ci[n]) if n in ci else None, _opt(truth.get(n)), n in d.get("fixed", {}))
+                        _pair(ci.get(n)), _opt(truth.get(n)), n in d.get("fixed", {}))
             for n, v in d["parameters"].items()
         }
 
@@ -122,7 +122,7 @@ class Result:
         truth = d.get("truth_properties", {})
         return {
             n: Estimate(n, float(v), d.get("property_units", {}).get(n, ""), _opt(se.get(n)),
-                        tuple(ci[n]) if n in ci else None, _opt(truth.get(n)))
+                        _pair(ci.get(n)), _opt(truth.get(n)))
             for n, v in d["properties"].items()
         }
 
@@ -243,6 +243,10 @@ class Result:
 
 def _opt(value: Any) -> float | None:
     return None if value is None or value == "" else float(value)
+
+
+def _pair(values: Any) -> tuple[float, float] | None:
+    return None if values is None else (float(values[0]), float(values[1]))
 
 
 def _nan(value: float | None) -> float:

@@ -1,4 +1,4 @@
-"""The ``result.json`` document of a run (schema documented in the README)."""
+"""The ``result.json`` document of a run (schema documented in docs/results.md)."""
 from __future__ import annotations
 
 import datetime as _dt
