@@ -262,6 +262,21 @@ def burst_start(u: np.ndarray, where: str) -> int:
     return int(i)
 
 
+def cut_at(shots: list[Shot], starts: list[int], n: int, remove_baseline: bool,
+           source: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Both channels of each shot from its burst start, ``n`` samples, minus the pre-burst mean
+    (when asked and at least 8 samples precede the burst)."""
+    if n < MIN_SAMPLES:
+        raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
+    cuts = []
+    for s, i in zip(shots, starts):
+        u, y = s.u.astype(float), s.y.astype(float)
+        if remove_baseline and i >= 8:
+            u, y = u - u[:i].mean(), y - y[:i].mean()
+        cuts.append((u[i:i + n], y[i:i + n]))
+    return cuts
+
+
 def combine(shots: list[Shot], reference: Reference | None, options: ProcessingOptions,
             source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Align, cut, baseline-correct, average and scale shots; returns t [s], u, y and meta."""
@@ -276,7 +291,6 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
     meta: dict[str, Any] = {"shots_averaged": len(shots), "dt_s": dt, "input": options.input,
                             "u_gain": options.u_gain, "y_gain": options.y_gain}
     ref = reference.on_grid(dt) if reference is not None else None
-    cuts = []
     if align.enabled and ref is not None:
         if ref.size < MIN_SAMPLES:
             raise DataError(f"{source}: the excitation covers only {ref.size} scope samples of {dt:.3g} s")
@@ -296,25 +310,13 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
             rhos.append(rho)
         available = min(s.u.size - lag for s, lag in zip(shots, lags))
         n = min(ref.size, available) if align.window == "excitation" else available
-        if n < MIN_SAMPLES:
-            raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
-        for s, lag in zip(shots, lags):
-            u, y = s.u.astype(float), s.y.astype(float)
-            if align.remove_baseline and lag >= 8:
-                u, y = u - u[:lag].mean(), y - y[:lag].mean()
-            cuts.append((u[lag:lag + n], y[lag:lag + n]))
+        cuts = cut_at(shots, lags, n, align.remove_baseline, source)
         meta.update(lags_samples=lags, correlations=[round(r, 4) for r in rhos], window=align.window,
                     excitation_samples_on_grid=int(ref.size), truncated=bool(n < ref.size))
     elif align.enabled:  # no designed waveform: the burst starts where the excitation channel leaves its rest
         starts = [burst_start(s.u, f"{source}: shot {k}") for k, s in enumerate(shots, start=1)]
         n = min(s.u.size - i for s, i in zip(shots, starts))
-        if n < MIN_SAMPLES:
-            raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
-        for s, i in zip(shots, starts):
-            u, y = s.u.astype(float), s.y.astype(float)
-            if align.remove_baseline and i >= 8:
-                u, y = u - u[:i].mean(), y - y[:i].mean()
-            cuts.append((u[i:i + n], y[i:i + n]))
+        cuts = cut_at(shots, starts, n, align.remove_baseline, source)
         meta.update(aligned="burst onset (no designed excitation)", burst_starts_samples=starts, window="record")
         if 0 in starts:
             meta["warnings"] = [f"{source}: the excitation channel is not at rest at the start of the record "
