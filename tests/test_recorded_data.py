@@ -235,3 +235,25 @@ def test_designed_input_without_a_design_is_one_line(tmp_path, capsys):
                              "--set", "backend.options.processing={input: designed}")
     assert code == 2 and err.count("\n") == 1
     assert "processing.input 'designed' needs the designed excitation (an excitation section in the config)" in err
+
+
+# ---------------------------------------------------------------------------------------
+# Lab run folders need no excitation either
+# ---------------------------------------------------------------------------------------
+def test_lab_run_folder_without_a_config_excitation(tmp_path):
+    """The waveform the generator played is saved with the shots: it aligns them; without it the
+    burst onset does."""
+    from plugins.backends.file import FileBackend, FileOptions
+    from test_file_backend_formats import designed, fake_shot, make_run
+
+    from mbus_framework.interfaces.backend import AcquisitionContext
+
+    wave = designed()
+    make_run(tmp_path, [fake_shot(wave, 40, seed=1), fake_shot(wave, 43, seed=2)], wave)
+    no_design = AcquisitionContext(None, None, None, None, None, "<config>")
+    m = FileBackend(FileOptions(path=str(tmp_path))).acquire(no_design)
+    assert m.meta["lags_samples"] == [40, 43] and m.u.size == wave.u.size
+    (tmp_path / "shots" / "excitation.npz").unlink()
+    m = FileBackend(FileOptions(path=str(tmp_path))).acquire(no_design)
+    assert m.meta["burst_starts_samples"] == [40, 43] and m.u.size == 400 - 43
+    assert m.u[: wave.u.size] == pytest.approx(0.5 * wave.u, abs=0.01)
