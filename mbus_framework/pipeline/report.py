@@ -6,10 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
-    from mbus_framework.interfaces.excitation import Waveform
-    from mbus_framework.pipeline.components import Components
     from mbus_framework.pipeline.figures import FitData
-    from mbus_framework.estimation.problem import FitProblem, FitResult
 
 
 def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
@@ -90,14 +87,3 @@ def write_figures(run_dir: Path, data: "FitData", dpi: int = 100) -> tuple[dict[
         atomic_write_bytes(Path(run_dir) / filename, png)
         files[f"{name}_plot"] = filename
     return files, pngs
-
-
-def write_plots(
-    run_dir: Path, c: "Components", problem: "FitProblem", fit: "FitResult", waveform: "Waveform | None"
-) -> dict[str, str]:
-    """Fig. 3.9 (measured vs predicted), residual correlations, frequency response, Fig. 3.7
-    (excitation spectrum), Fig. 3.8 (trace) as PNGs; returns the ``files`` entries."""
-    from mbus_framework.pipeline.figures import FitData
-
-    data = FitData.from_fit(problem, fit, waveform, c.config.title or c.source)
-    return write_figures(run_dir, data)[0]
