@@ -2,14 +2,13 @@
 Tables 7.1-7.4."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from mbus_framework.analysis.crispness_model import json_safe
 from mbus_framework.pipeline.storage import atomic_write_text
-import json
 
 
 def _tag(s: dict) -> str:
@@ -25,14 +24,15 @@ def agreement_table(sets: list[dict]) -> pd.DataFrame:
 
 
 def sensitivity_table(sets: list[dict]) -> pd.DataFrame:
-    """Table 7.4: one row per input, mean / SD of |change| (and signed mean) per model."""
+    """Table 7.4 in long form: inputs (the set), model, input, mean / SD of |change|, signed mean."""
     parts = []
     for s in sets:
         for model in ("network", "ridge"):
-            t = s[f"{model}_sensitivity"].copy()
-            t.columns = pd.MultiIndex.from_product([[f"{model} [{_tag(s)}]"], t.columns])
+            t = s[f"{model}_sensitivity"].reset_index()
+            t.insert(0, "model", model)
+            t.insert(0, "inputs", _tag(s))
             parts.append(t)
-    return pd.concat(parts, axis=1)
+    return pd.concat(parts, ignore_index=True)
 
 
 def comparison_rows(res: dict) -> list[dict]:
@@ -64,7 +64,7 @@ def write_tables(out: Path, res: dict, data: pd.DataFrame) -> list[Path]:
         "lsd_assessor.csv": res["lsd_assessor"].set_index(["a", "b"]),
         "loo_predictions.csv": predictions_frame(res, data),
         "agreement.csv": agreement_table(res["sets"]).set_index(["inputs", "model"]),
-        "sensitivity.csv": sensitivity_table(res["sets"]),
+        "sensitivity.csv": sensitivity_table(res["sets"]).set_index(["inputs", "model", "input"]),
         "comparisons.csv": pd.DataFrame(comparison_rows(res)).set_index("test"),
     }
     if "by_group" in res:

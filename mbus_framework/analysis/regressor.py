@@ -35,7 +35,9 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
     hidden_layer_sizes : neurons per hidden layer; (6,) is the dissertation's final network.
     activation : 'tanh' or 'logistic' hidden units (the output is linear).
     n_restarts : random initialisations per member; the best by validation MSE is kept.
-    n_members : networks averaged in ``predict``, each on its own train/validation split.
+    n_members : networks averaged in ``predict``, each on its own train/validation split
+        (1: the dissertation's single network; averaging removes the dependence of a single
+        early-stopped network on its random split).
     validation_fraction : share of the fit data used for early stopping (0: none, train
         to convergence).
     patience : epochs without a new best validation MSE before training stops (MATLAB's
@@ -49,8 +51,8 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         self,
         hidden_layer_sizes: Sequence[int] = (6,),
         activation: str = "tanh",
-        n_restarts: int = 5,
-        n_members: int = 1,
+        n_restarts: int = 3,
+        n_members: int = 5,
         validation_fraction: float = 0.22,
         patience: int = 6,
         max_epochs: int = 1000,
