@@ -103,3 +103,53 @@ def test_done_when_on_a_table_from_the_truth_with_estimation_noise(slice_fit, tm
     final = est.fit(X, y)
     expected = [PARAMETER_OF[p] for p in gen.RELATION.effect_order(apples)]
     assert rank(sensitivities(final.predict, X, inputs)) == expected
+
+
+@pytest.mark.slow
+def test_full_command_on_the_apples_stand_in_table(slice_fit, tmp_path, capsys):
+    """The documented workflow with every default (structures, five-member ensembles)."""
+    from mbus_framework.analysis.cli import main
+
+    gen = generator()
+    gen.stand_in_table(gen.draw_apples(), slice_fit).to_csv(tmp_path / "properties.csv", index=False)
+    out = tmp_path / "crispness"
+    assert main(["crispness", str(tmp_path / "properties.csv"), "--scores", str(PANEL), "--compare-inputs",
+                 "k_sigma,k_tau,b_sigma", "-o", str(out)]) == 0
+    doc = json.loads((out / "crispness.json").read_text())
+    four, used = doc["input_sets"]
+    assert used["network"]["r"] >= 0.9 and four["network"]["r"] >= 0.9
+    assert used["network"]["r"] > used["ridge"]["r"]  # the relation is nonlinear
+    expected = [PARAMETER_OF[p] for p in gen.RELATION.effect_order(gen.draw_apples())]
+    assert used["sensitivity"]["network_ranking"] == expected
+    assert four["sensitivity"]["network_ranking"] == [*expected, "b_tau"]  # b_tau is not in the relation
+    assert doc["anova_group"][0]["p"] < 0.05  # cultivars differ (Table 7.3)
+    for name in ("measured_vs_predicted.png", "structures.png", "sensitivities.png", "model.json"):
+        assert (out / name).exists()
+
+
+@pytest.mark.parametrize("corner", [0, 5, 10, 15])
+def test_corners_of_the_identifiable_box(corner):
+    """The generator's box keeps k_sigma, k_tau and b_tau apart: Cramer-Rao SEs stay small."""
+    from virtual_apples import cramer_rao_relative
+
+    box = generator().BOX
+    truth = {p: box[p][(corner >> k) & 1] for k, p in enumerate(box)}
+    assert max(cramer_rao_relative(truth).values()) < 0.03
+
+
+@pytest.mark.slow
+def test_every_apple_is_identifiable():
+    from virtual_apples import cramer_rao_relative
+
+    gen = generator()
+    for _, a in gen.draw_apples().iterrows():
+        assert max(cramer_rao_relative({p: a[p] for p in gen.PROPERTIES}).values()) < 0.01, a.sample_id
+
+
+def test_critical_damping_is_where_identifiability_is_lost():
+    """Outside the box (higher viscosities) the last oscillatory modes reach critical damping
+    and k_sigma, k_tau, b_tau can no longer be told apart: the reason for the box."""
+    from virtual_apples import cramer_rao_relative
+
+    bad = cramer_rao_relative({"E_sigma": 2.4e10, "eta_sigma": 5.2e3, "E_tau": 5.5e9, "eta_tau": 1.4e4})
+    assert max(bad.values()) > 0.1

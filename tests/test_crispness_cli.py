@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from sklearn.base import clone
 
 from mbus_framework.analysis.cli import main
 from mbus_framework.analysis.crispness_model import CrispnessModel

@@ -48,3 +48,23 @@ def physics_table(n: int = 20, seed: int = 0, relative_se: float = 0.01) -> tupl
                      **model.to_properties(theta), "success": True})
     panel = gen.simulate_panel(apples.sample_id, gen.RELATION(apples), gen.PANEL, seed=seed + 1)
     return pd.DataFrame(rows), panel
+
+
+def cramer_rao_relative(truth: dict, noise: float = 0.05 / 3**0.5) -> dict[str, float]:
+    """Cramer-Rao relative standard errors of the Kelvin-Voigt parameters of a 6 mm slice
+    (apple_slice.yaml) with the given true properties and relative output noise."""
+    import tempfile
+
+    from mbus_framework.interfaces.backend import AcquisitionContext
+    from mbus_framework.pipeline.components import build_components
+    from mbus_framework.pipeline.config import apply_overrides, read_yaml, validate_structure
+    from mbus_framework.pipeline.results import cramer_rao
+    from mbus_framework.pipeline.run import make_problem
+
+    sets = [f"backend.options.truth.{k}={v}" for k, v in truth.items()] + [f"backend.options.noise.relative_std={noise}"]
+    c = build_components(validate_structure(apply_overrides(read_yaml(APPLE_SLICE), sets), "apple"), "apple")
+    with tempfile.TemporaryDirectory() as tmp:
+        m = c.backend.acquire(AcquisitionContext(c.excitation.waveform(), c.sample, c.model, c.registry, Path(tmp), "apple"))
+    theta = c.model.theta_from_mapping(truth, "truth")
+    se = cramer_rao(make_problem(c, m), theta, m.meta["noise_std"])
+    return {name: se[name] / value for name, value in zip(c.model.parameter_names, theta)}

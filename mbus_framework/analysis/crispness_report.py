@@ -39,13 +39,17 @@ def comparison_rows(res: dict) -> list[dict]:
     rows = []
     for s in res["sets"]:
         t = s["network_vs_ridge"]
-        rows.append({"test": f"r(network) = r(ridge) [{_tag(s)}], dependent (Meng et al.)", "statistic": t["z"], "p": t["p"]})
+        rows.append({"test": f"r(network) = r(ridge) [{_tag(s)}], dependent (Meng et al.)", "statistic": "z", "value": t["z"], "p": t["p"]})
     if "fisher_z" in res:
         a, b = (_tag(s) for s in res["sets"][:2])
-        rows.append({"test": f"r [{a}] = r [{b}], Fisher's Z (independent samples)", "statistic": res["fisher_z"]["z"], "p": res["fisher_z"]["p"]})
-        rows.append({"test": f"r [{a}] = r [{b}], dependent (Meng et al.)", "statistic": res["dependent_z"]["z"], "p": res["dependent_z"]["p"]})
-        rows.append({"test": f"equal slopes (parallel lines) [{a}] vs [{b}]", "statistic": res["lines"]["slope_t"], "p": res["lines"]["slope_p"]})
-        rows.append({"test": f"equal intercepts [{a}] vs [{b}]", "statistic": res["lines"]["intercept_t"], "p": res["lines"]["intercept_p"]})
+        rows.append({"test": f"r [{a}] = r [{b}], Fisher's Z (independent samples)", "statistic": "z",
+                     "value": res["fisher_z"]["z"], "p": res["fisher_z"]["p"]})
+        rows.append({"test": f"r [{a}] = r [{b}], dependent (Meng et al.)", "statistic": "z",
+                     "value": res["dependent_z"]["z"], "p": res["dependent_z"]["p"]})
+        rows.append({"test": f"equal slopes (parallel lines) [{a}] vs [{b}]", "statistic": "t",
+                     "value": res["lines"]["slope_t"], "p": res["lines"]["slope_p"]})
+        rows.append({"test": f"equal intercepts [{a}] vs [{b}]", "statistic": "t",
+                     "value": res["lines"]["intercept_t"], "p": res["lines"]["intercept_p"]})
     return rows
 
 
@@ -79,7 +83,7 @@ def write_tables(out: Path, res: dict, data: pd.DataFrame) -> list[Path]:
 
 
 def write_json(path: Path, res: dict) -> Path:
-    doc = {k: res[k] for k in ("table", "panel", "seed", "n_samples", "group", "notes", "network", "files")}
+    doc = {k: res[k] for k in ("table", "panel", "seed", "n_samples", "group", "notes", "network", "change", "files")}
     for key in ("by_assessor", "by_group", "anova_assessor", "anova_group"):
         if key in res:
             doc[key] = res[key].reset_index().to_dict(orient="records")
@@ -126,8 +130,8 @@ def text(res: dict) -> str:
     cols = ["n", "r", "slope", "slope_p", "intercept", "intercept_p", "rmse"]
     lines += ["", "Leave-one-out prediction: predicted = intercept + slope x measured (Figs 7.3/7.4;",
               "  slope_p tests slope = 1, intercept_p tests intercept = 0)", _fmt(ag[cols])]
-    lines += ["", "Tests"] + [f"  {r['test']}: z/t = {r['statistic']:.3f}, p = {r['p']:.3g}" for r in comparison_rows(res)]
-    lines += ["", "Sensitivities: |change in predicted score| for a +10 % input change, mean (SD) (Table 7.4)"]
+    lines += ["", "Tests"] + [f"  {r['test']}: {r['statistic']} = {r['value']:.3f}, p = {r['p']:.3g}" for r in comparison_rows(res)]
+    lines += ["", f"Sensitivities: |change in predicted score| for a {100 * res['change']:+g} % input change, mean (SD) (Table 7.4)"]
     lines += [_sens_text(res["sets"])]
     for s in res["sets"]:
         lines.append(f"  network [{_tag(s)}] ranks the inputs: {' > '.join(s['ranking'])}")

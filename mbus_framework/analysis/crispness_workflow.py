@@ -124,7 +124,7 @@ def run_crispness(args) -> int:
     progress = None if args.quiet else make_progress()
 
     res: dict = {"table": str(args.table), "panel": str(args.scores), "seed": args.seed, "notes": notes,
-                 "n_samples": len(data), "group": group, "network": network.get_params()}
+                 "n_samples": len(data), "group": group, "network": network.get_params(), "change": args.change}
     res["by_assessor"] = describe_by(panel, "assessor")
     res["anova_assessor"] = one_way_anova(panel, "assessor", args.alpha, "Assessor")
     res["lsd_assessor"] = lsd_comparisons(panel, "assessor", args.alpha)
@@ -164,7 +164,9 @@ def _plots(out: Path, res: dict, panel: pd.DataFrame, group: str | None, change:
     rows = []
     for s in res["sets"]:
         title = "inputs: " + ", ".join(s["inputs"])
-        rows.append((title, [("LM network (" + structure_label(s["model"].hidden_layer_sizes) + ")", s["y"], s["network_loo"], s["network_agreement"]),
+        m = s["model"]
+        name = f"LM network {structure_label(m.hidden_layer_sizes)}" + (f", {m.n_members} members" if m.n_members > 1 else "")
+        rows.append((title, [(name, s["y"], s["network_loo"], s["network_agreement"]),
                              ("ridge baseline", s["y"], s["ridge_loo"], s["ridge_agreement"])]))
     lo, hi = float(min(0.0, panel["score"].min())), float(max(9.0, panel["score"].max()))
     files = [plots.measured_vs_predicted(rows, out / "measured_vs_predicted.png", (lo, hi))]
