@@ -40,11 +40,19 @@ def test_fisher_z_by_hand_and_its_size_under_h0():
     assert t["z"] == pytest.approx(z, rel=1e-12) and t["p"] == pytest.approx(2 * stats.norm.sf(abs(z)), rel=1e-12)
     # two independent samples with the same rho: the test rejects at its nominal rate
     rng = np.random.default_rng(1)
-    n, reps, rho = 30, 3000, 0.7
-    cov = [[1, rho], [rho, 1]]
-    r = [[np.corrcoef(rng.multivariate_normal([0, 0], cov, n).T)[0, 1] for _ in range(2)] for _ in range(reps)]
-    p = np.array([fisher_z_test(a, n, b, n)["p"] for a, b in r])
+    n, reps = 30, 3000
+    r = correlations(rng, np.array([[1, 0.7], [0.7, 1]]), n, 2 * reps)
+    p = np.array([fisher_z_test(a, n, b, n)["p"] for a, b in r[:, 0, 1].reshape(reps, 2)])
     assert np.mean(p < 0.05) == pytest.approx(0.05, abs=0.015)
+
+
+def correlations(rng, cov, n, reps) -> np.ndarray:
+    """Sample correlation matrices of ``reps`` normal samples of size n with covariance cov."""
+    d = rng.standard_normal((reps, n, len(cov))) @ np.linalg.cholesky(cov).T
+    d = d - d.mean(axis=1, keepdims=True)
+    c = np.einsum("rni,rnj->rij", d, d)
+    s = np.sqrt(np.einsum("rii->ri", c))
+    return c / s[:, :, None] / s[:, None, :]
 
 
 def test_dependent_correlation_test_size_and_power():
@@ -54,13 +62,9 @@ def test_dependent_correlation_test_size_and_power():
     n, reps = 40, 2000
 
     def rejection(r1, r2, r12):
-        cov = np.array([[1, r1, r2], [r1, 1, r12], [r2, r12, 1]])
-        hits = 0
-        for _ in range(reps):
-            d = rng.multivariate_normal(np.zeros(3), cov, n)
-            c = np.corrcoef(d.T)
-            hits += dependent_correlation_test(c[0, 1], c[0, 2], c[1, 2], n)["p"] < 0.05
-        return hits / reps
+        c = correlations(rng, np.array([[1, r1, r2], [r1, 1, r12], [r2, r12, 1]]), n, reps)
+        p = [dependent_correlation_test(m[0, 1], m[0, 2], m[1, 2], n)["p"] for m in c]
+        return np.mean(np.array(p) < 0.05)
 
     assert rejection(0.6, 0.6, 0.8) == pytest.approx(0.05, abs=0.02)
     assert rejection(0.7, 0.4, 0.6) > 0.6

@@ -129,20 +129,20 @@ def test_split_follows_the_dissertation_proportions():
     assert sorted(np.concatenate([train, val])) == list(range(45))
 
 
-@settings(max_examples=20)
-@given(seed=st.integers(0, 2**31), k=st.integers(0, 11), shift=st.floats(-1e6, 1e6, allow_nan=False))
+@settings(max_examples=12)
+@given(seed=st.integers(0, 2**31), k=st.integers(0, 9), shift=st.floats(-1e6, 1e6, allow_nan=False))
 def test_held_out_sample_never_reaches_scaling_or_weights(seed, k, shift):
     """Leave-one-out: altering the held-out sample (inputs and score, even far outside the
     range) changes neither that fold's scaling nor its weights."""
     rng = np.random.default_rng(seed)
-    X, y = rng.random((12, 2)) * [3e10, 5e9], rng.random(12) * 9
+    X, y = rng.random((10, 2)) * [3e10, 5e9], rng.random(10) * 9
     est = LMNetworkRegressor(hidden_layer_sizes=(2,), n_restarts=1, n_members=1, max_epochs=30)
     a = leave_one_out(est, X, y, seed=7, keep_models=True).fold_models[k]
     X2, y2 = X.copy(), y.copy()
     X2[k] += shift
     y2[k] -= shift
     b = leave_one_out(est, X2, y2, seed=7, keep_models=True).fold_models[k]
-    rest = np.delete(np.arange(12), k)
+    rest = np.delete(np.arange(10), k)
     np.testing.assert_array_equal(a.x_scaling_.low, X[rest].min(axis=0))
     np.testing.assert_array_equal(a.x_scaling_.high, X[rest].max(axis=0))
     for attr in ("low", "high"):
