@@ -140,27 +140,23 @@ def test_missing_input_column_is_a_one_line_error():
     _one_line(e, "props.csv", "b_tau")
 
 
-def test_panel_file_errors(tmp_path):
+def test_missing_panel_file(tmp_path):
     with pytest.raises(DataError) as e:
         read_panel(tmp_path / "nope.csv")
     _one_line(e, "nope.csv", "not found")
-    bad = tmp_path / "panel.csv"
-    bad.write_text("sample_id,judge,score\ns1,A,3\n")
+
+
+@pytest.mark.parametrize("text, words", [
+    ("sample_id,judge,score\ns1,A,3\n", ["panel.csv", "assessor"]),
+    ("sample_id,assessor,score\ns1,A,3\ns2,A,crisp\n", ["panel.csv", "row 3", "score", "'crisp'"]),
+    ("sample_id,assessor,score\ns1,A,3\ns1,A,4\n", ["rows 2 and 3", "twice"]),
+    ("sample_id,assessor,score\n,A,3\n", ["row 2", "sample_id"]),
+])
+def test_bad_panel_files_are_one_line_errors(tmp_path, text, words):
+    (tmp_path / "panel.csv").write_text(text)
     with pytest.raises(DataError) as e:
-        read_panel(bad)
-    _one_line(e, "panel.csv", "assessor")
-    bad.write_text("sample_id,assessor,score\ns1,A,3\ns2,A,crisp\n")
-    with pytest.raises(DataError) as e:
-        read_panel(bad)
-    _one_line(e, "panel.csv", "row 3", "score", "'crisp'")
-    bad.write_text("sample_id,assessor,score\ns1,A,3\ns1,A,4\n")
-    with pytest.raises(DataError) as e:
-        read_panel(bad)
-    _one_line(e, "rows 2 and 3", "twice")
-    bad.write_text("sample_id,assessor,score\n,A,3\n")
-    with pytest.raises(DataError) as e:
-        read_panel(bad)
-    _one_line(e, "row 2", "sample_id")
+        read_panel(tmp_path / "panel.csv")
+    _one_line(e, *words)
 
 
 def test_too_few_samples_and_levels():

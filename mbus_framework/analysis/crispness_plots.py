@@ -3,7 +3,6 @@ for the network and the ridge baseline side by side, the structure comparison (F
 the sensitivities (Table 7.4) and the panel's scores by assessor and group."""
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -11,23 +10,7 @@ import numpy as np
 import pandas as pd
 
 from mbus_framework.analysis.agreement import Agreement
-from mbus_framework.pipeline.storage import atomic_write_bytes
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    _pyplot().close(fig)
-    return atomic_write_bytes(path, buf.getvalue())
+from mbus_framework.studies.common import _pyplot, _save_figure as _save  # Agg backend; atomic PNG
 
 
 def measured_vs_predicted(rows: Sequence[tuple[str, Sequence[tuple[str, np.ndarray, np.ndarray, Agreement]]]], path: Path, score_range=(0.0, 9.0)) -> Path:
