@@ -1,6 +1,7 @@
 """``mbus-run``: run an identification from a YAML config.
 
     mbus-run CONFIG [-o OUTDIR] [--set dotted.key=value ...] [--no-plots] [--quiet]
+    mbus-run CAMPAIGN.yaml [-o DIR] [--workers N] [--scheduler ADDRESS]
     mbus-run --list-plugins
 
 User errors (bad config, bad data, instrument failure) print one line and exit non-zero
@@ -60,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="rank candidate excitations by D-optimality for the config's model and transducer band",
     )
+    p.add_argument("--workers", type=int, metavar="N", help="campaigns and studies: Dask LocalCluster worker processes (default: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="campaigns and studies: run on the Dask cluster at this address (tcp://host:8786)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
@@ -91,7 +94,8 @@ def _special_mode(args, progress) -> str | None:
         from mbus_framework.studies.runner import run_study
 
         result = run_study(
-            args.study, args.config, args.overrides, args.out, progress, **parse_study_options(args.study_options)
+            args.study, args.config, args.overrides, args.out, progress, distributed=True, workers=args.workers,
+            scheduler=args.scheduler, **parse_study_options(args.study_options)
         )
         return result.text
     if args.compare_models:
@@ -125,6 +129,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
+        from mbus_framework.campaigns.spec import is_campaign_file
+
+        if is_campaign_file(args.config):
+            from mbus_framework.campaigns.cli import run_from_cli
+
+            return run_from_cli(args)
         from mbus_framework.pipeline.progress import make_progress
         from mbus_framework.pipeline.report import summary_text
         from mbus_framework.pipeline.run import execute
