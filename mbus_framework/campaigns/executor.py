@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import uuid
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, TypeVar
@@ -50,15 +52,17 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
         finally:
             connected.close()
         return
-    n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-        env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
-    )
+    if workers is not None and workers < 1:
+        raise ClusterError(f"--workers must be at least 1 (got {workers})")
+    with _sigint_ignored():  # worker processes inherit it: Ctrl-C stops the client, which stops them
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+            env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
+        )
     try:
         local = Client(cluster, set_as_default=False)
         try:
@@ -67,6 +71,20 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
             local.close()
     finally:
         cluster.close()
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT while worker processes are started (a child keeps an ignored SIGINT
+    ignored, and Python then installs no KeyboardInterrupt handler in it); restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def run_all(client, fn: Callable[[T], Any], items: Iterable[T], on_done: Callable[[T, Any], None],

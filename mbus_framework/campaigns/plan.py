@@ -52,9 +52,11 @@ def run_label(sample_id: str, replicate: int | None = None) -> str:
     return name if replicate is None else f"{name}-r{replicate}"
 
 
-def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = None) -> list[SampleTask]:
-    """Every fit of ``campaign`` in sheet order; raises :class:`CampaignError` listing every problem."""
-    problems = Problems()
+def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = None,
+                  problems: Problems | None = None) -> list[SampleTask]:
+    """Every fit of ``campaign`` in sheet order; raises :class:`CampaignError` listing every
+    problem (those already in ``problems`` first)."""
+    problems = problems if problems is not None else Problems()
     resolved: dict[int, tuple[dict, Any]] = {}
     unattributed: dict[str, list[str]] = {}
     for i, row in enumerate(campaign.rows):
@@ -116,7 +118,7 @@ def _resolve(campaign: Campaign, row: SheetRow, problems: Problems, unattributed
         if column is None:
             unattributed.setdefault(rest, []).append(row.where.rpartition(": ")[2])
         else:
-            problems.add(f"{row.at(column)}: {rest}")
+            problems.add(f"{row.at(column)}: {rest.removeprefix(column + ': ')}")
         return None
     return config.model_dump(mode="json"), c
 

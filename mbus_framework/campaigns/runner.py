@@ -21,6 +21,7 @@ from typing import Any
 from mbus_framework import __version__
 from mbus_framework.campaigns.executor import dask_client, run_all
 from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
+from mbus_framework.campaigns.problems import Problems
 from mbus_framework.campaigns.progress import CampaignProgress
 from mbus_framework.campaigns.replicates import aggregate_replicates
 from mbus_framework.campaigns.report import CAMPAIGN_JSON, GroupReport, group_report
@@ -93,9 +94,10 @@ def run_campaign(
     cancels the unfinished fits, writes what finished and raises :class:`CampaignInterrupted`.
     """
     t0 = time.perf_counter()
-    campaign = load_campaign(path, overrides)
+    problems = Problems()
+    campaign = load_campaign(path, overrides, problems)
     out = Path(out_dir) if out_dir is not None else default_out_dir(campaign)
-    tasks = plan_campaign(campaign, out, plots)
+    tasks = plan_campaign(campaign, out, plots, problems)
     out.mkdir(parents=True, exist_ok=True)
     rows: dict[str, dict] = {}
     result = CampaignResult(campaign, out, tasks, None)
@@ -128,6 +130,11 @@ def run_campaign(
                     run_all(dask, run_task, todo, done, name=lambda t: t.label)
     except KeyboardInterrupt:
         result.interrupted = True
+        for task in todo:  # fits that finished on a worker while the client was stopping
+            stored = read_marker(task.run_dir, task.key) if task.label not in rows else None
+            if stored is not None:
+                rows[task.label] = stored
+                result.fitted.append(task.label)
     _finish(result, rows, cluster, t0)
     if result.interrupted:
         raise CampaignInterrupted(result)

@@ -171,7 +171,7 @@ def _check_header(header, groups, covariates, records, problems: Problems) -> se
         where = f"{sheet}: column '{name}'" if not inline else f"{sheet}: key '{name}'"
         problems.add(
             f"{where}: unknown column{hint}; a column is {', '.join(RESERVED)}, a name in campaign.groups or "
-            f"campaign.covariates, or a dotted run-config key ({', '.join(s + '.' for s in CONFIG_SECTIONS[:4])} ...)"
+            f"campaign.covariates, or a dotted run-config key such as sample.density or backend.options.seed"
         )
     return known
 

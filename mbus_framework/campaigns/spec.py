@@ -71,23 +71,27 @@ def is_campaign_file(path: str | Path) -> bool:
         return False
 
 
-def load_campaign(path: str | Path, overrides: list[str] | None = None) -> Campaign:
+def load_campaign(path: str | Path, overrides: list[str] | None = None, problems: Problems | None = None) -> Campaign:
     """Read a campaign file and its sheet; every problem found is reported at once
-    (:class:`CampaignError`, one line each)."""
+    (:class:`CampaignError`, one line each). With ``problems`` given, problems of the sheet's
+    rows are added there (those rows left out) for the caller to report with its own."""
     path = Path(path)
     data = read_yaml(path)
-    problems = Problems()
+    collect = problems is not None
+    problems = problems if collect else Problems()
     for key in data:
         if key != CAMPAIGN_KEY:
             problems.add(f"{path}: {key}: unknown top-level key{did_you_mean(key, [CAMPAIGN_KEY])}; a campaign "
                          f"file holds one '{CAMPAIGN_KEY}:' mapping")
     raw = data.get(CAMPAIGN_KEY)
     if not isinstance(raw, dict):
-        raise CampaignError(problems.lines + [f"{path}: {CAMPAIGN_KEY}: must be a mapping (see docs/campaign-format.md)"])
+        problems.add(f"{path}: {CAMPAIGN_KEY}: must be a mapping (see docs/campaign-format.md)")
+        problems.raise_if_any()
     try:
         spec = CampaignSpec.model_validate(raw)
     except ValidationError as exc:
-        raise CampaignError(problems.lines + [f"{path}: {format_validation_error(exc, CampaignSpec, CAMPAIGN_KEY)}"]) from None
+        problems.add(f"{path}: {format_validation_error(exc, CampaignSpec, CAMPAIGN_KEY)}")
+        problems.raise_if_any()
     if spec.base is not None:
         base_source = path.parent / spec.base
         try:
@@ -102,5 +106,6 @@ def load_campaign(path: str | Path, overrides: list[str] | None = None) -> Campa
     except ConfigError as exc:
         problems.add(str(exc))
     rows = read_sheet(spec.samples, path, spec.groups, spec.covariates, problems)
-    problems.raise_if_any()
+    if not collect or not rows:
+        problems.raise_if_any()
     return Campaign(path, spec, base, base_source, rows)

@@ -14,6 +14,7 @@ import copy
 import json
 import os
 import shutil
+import socket
 import time
 import traceback
 from pathlib import Path
@@ -55,7 +56,8 @@ def run_task(task: SampleTask) -> dict[str, Any]:
         cacheable = False
     seconds = time.perf_counter() - t0
     if cacheable:
-        atomic_write_json(run_dir / MARKER, {"key": task.key, "row": row, "seconds": seconds})
+        worker = {"host": socket.gethostname(), "pid": os.getpid()}
+        atomic_write_json(run_dir / MARKER, {"key": task.key, "row": row, "seconds": seconds, "worker": worker})
     return {"row": row, "cacheable": cacheable, "seconds": seconds}
 
 
