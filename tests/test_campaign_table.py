@@ -184,3 +184,17 @@ def test_chapter4_tables_are_transcribed_from_the_dissertation():
     out = subprocess.run([sys.executable, str(CAMPAIGNS / "generate_chapter4.py"), "--check", str(DISSERTATION)],
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stdout
+
+
+def test_progress_bar_counts_done_failed_and_remaining(capsys):
+    from mbus_framework.campaigns.progress import CampaignProgress
+
+    with CampaignProgress(3, "liquids", enabled=True) as bar:
+        bar.finished(failed=False)
+        bar.finished(failed=True)
+        task = bar._bar.tasks[0]
+        assert (task.completed, task.fields["failed"], task.fields["remaining"]) == (2, 1, 1)
+    assert "liquids" in capsys.readouterr().err
+    with CampaignProgress(3, "quiet", enabled=None) as bar:  # not a terminal (pytest captures stderr)
+        bar.finished(failed=False)
+    assert bar._bar is None and capsys.readouterr().err == ""

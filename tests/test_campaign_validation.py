@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import re
+from pathlib import Path
 
 import pytest
 import yaml
@@ -183,3 +184,28 @@ def test_inline_samples_and_mapping_cells(tmp_path):
     assert [x.sample_id for x in tasks] == ["a", "7"]
     assert tasks[0].configs[0]["backend"]["options"]["truth"] == pytest.approx(t[0])
     assert tasks[0].sample["density"] == 1050 and tasks[1].sample["density"] == BASE["sample"]["density"]
+
+
+def test_options_that_do_not_apply_to_a_campaign(tmp_path, capsys):
+    path = write_campaign(tmp_path, [{"sample_id": "a", "cultivar": "x"}])
+    assert main([str(path), "--study", "monte_carlo"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mbus-run: error: {path}: --study runs on a run config, not on a campaign file")
+
+
+def test_a_study_from_the_command_line_goes_to_the_dask_scheduler_given(tmp_path, capsys, monkeypatch):
+    """--study runs through the campaigns' executor: an unreachable --scheduler is a one-line error."""
+    import socket
+
+    from mbus_framework.campaigns import executor
+
+    monkeypatch.setattr(executor, "CONNECT_TIMEOUT_S", 1)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+    study = Path(__file__).parent / "data" / "studies_small.yaml"
+    code = main([str(study), "--study", "monte_carlo", "--study-option", "n_runs=2", "--scheduler", address,
+                 "-o", str(tmp_path / "mc")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"mbus-run: error: cannot connect to the Dask scheduler at {address}: "
+                                 + err[0].split(f"{address}: ", 1)[1]]

@@ -16,6 +16,11 @@ from mbus_framework.campaigns.runner import CampaignInterrupted, run_campaign, s
 
 def run_from_cli(args) -> int:
     """Run the campaign named by ``args.config`` with the ``mbus-run`` options."""
+    other = [flag for flag, on in (("--study", args.study), ("--compare-models", args.compare_models),
+                                   ("--design-excitation", args.design_excitation)) if on]
+    if other:
+        print(f"mbus-run: error: {args.config}: {other[0]} runs on a run config, not on a campaign file", file=sys.stderr)
+        return 2
     previous = _terminate_as_interrupt()
     try:
         result = run_campaign(

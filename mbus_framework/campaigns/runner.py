@@ -13,6 +13,7 @@ Campaign folder (default ``<base output.directory>/<campaign name>``, so a re-ru
 from __future__ import annotations
 
 import datetime as _dt
+import importlib.util
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,7 +127,8 @@ def run_campaign(
         with CampaignProgress(len(todo), f"{campaign.name}{reused}", progress) as bar:
             if todo:
                 with dask_client(cluster["workers"], cluster["scheduler"], client) as dask:
-                    cluster["dashboard"] = getattr(dask, "dashboard_link", None)
+                    if importlib.util.find_spec("bokeh") is not None:  # the dashboard needs bokeh
+                        cluster["dashboard"] = getattr(dask, "dashboard_link", None)
                     run_all(dask, run_task, todo, done, name=lambda t: t.label)
     except KeyboardInterrupt:
         result.interrupted = True
