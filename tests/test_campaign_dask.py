@@ -1,6 +1,7 @@
-"""Campaigns on real Dask clusters: a LocalCluster of worker processes, a scheduler started
-separately and reached by address, Ctrl-C half-way and a re-run, a corrupt file among good
-ones, averaged against fitted replicates, and studies through the same executor."""
+"""Campaigns on real Dask clusters: a LocalCluster of worker processes (shared by the module's
+tests; the Ctrl-C test's mbus-run starts and stops its own), a scheduler started separately and
+reached by address, Ctrl-C half-way and a re-run, a corrupt file among good ones, averaged
+against fitted replicates, and studies through the same executor."""
 from __future__ import annotations
 
 import json
@@ -52,28 +53,36 @@ def within(table: pd.DataFrame, truths: dict[str, dict], k: float = 4.0) -> None
 
 
 @pytest.fixture(scope="module")
-def averaged_run(tmp_path_factory):
-    """The campaign of 3 samples (2, 2 and 1 records) with replicates averaged, run by
-    run_campaign on a LocalCluster of its own (workers=2)."""
+def averaged_run(tmp_path_factory, client):
+    """The campaign of 3 samples (2, 2 and 1 records) with replicates averaged, on the module's
+    LocalCluster."""
     folder = tmp_path_factory.mktemp("averaged")
     truths = draw_truths(3, seed=21)
     path = write_campaign(folder, replicate_rows(truths, [2, 2, 1]), covariates=["firmness"])
-    result = run_campaign(path, folder / "out", workers=2)
+    result = run_campaign(path, folder / "out", client=client)
     return result, dict(zip("abc", truths)), folder
 
 
-def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run):
+def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run, client):
     result, truths, _ = averaged_run
     out = result.out_dir
     markers = {d.name: json.loads((d / MARKER).read_text()) for d in (out / "runs").iterdir()}
     assert sorted(markers) == ["a", "b", "c"]
-    pids = {m["worker"]["pid"] for m in markers.values()}
-    assert os.getpid() not in pids and 1 <= len(pids) <= 2  # fitted in the cluster's worker processes
-    assert not any(psutil.pid_exists(p) and "python" in psutil.Process(p).name() for p in pids)  # cluster closed
+    workers = set(client.run(os.getpid).values())
+    assert len(workers) == 2 and os.getpid() not in workers
+    assert {m["worker"]["pid"] for m in markers.values()} <= workers  # fitted in the cluster's worker processes
     meta = json.loads((out / "campaign.json").read_text())
     assert meta["status"] == "finished" and meta["fitted"] == 3 and meta["failed"] == 0
-    assert meta["cluster"]["workers"] == 2
     table = pd.read_parquet(out / "properties.parquet")
+    params = ["k_sigma", "b_sigma", "k_tau", "b_tau"]
+    assert list(table.columns) == [  # docs/campaign-table.md
+        "sample_id", "cultivar", "replicate", "replicates", "n_replicates", "sample_length", "sample_diameter",
+        "sample_density", *params, *(f"{p}_se" for p in params), *PROPS, *(f"{p}_se" for p in PROPS),
+        *(f"{p}_ci_low" for p in PROPS), *(f"{p}_ci_high" for p in PROPS), "nrmse", "success", "warnings", "error",
+        *(f"true_{p}" for p in params), *(f"true_{p}" for p in PROPS), "firmness", "run_dir", "fit_time_s"]
+    assert {c: str(t) for c, t in table.dtypes.items() if str(t) != "float64"} == {
+        "sample_id": "string", "cultivar": "string", "replicate": "Int64", "replicates": "string",
+        "n_replicates": "int64", "success": "bool", "warnings": "string", "error": "string", "run_dir": "string"}
     assert table["sample_id"].tolist() == ["a", "b", "c"] and table["error"].isna().all()
     for _, row in table.iterrows():  # the table is each run's result.json
         res = json.loads((out / row["run_dir"] / "result.json").read_text())
@@ -185,8 +194,8 @@ def test_ctrl_c_half_way_then_a_rerun_fits_only_the_missing_samples(tmp_path, cl
     assert meta["status"] == "interrupted"
     done = {m.parent.name: (m.stat().st_mtime_ns, m.read_bytes()) for m in out.glob(f"runs/*/{MARKER}")}
     assert 2 <= len(done) < 10
-    pids = {json.loads(m[1])["worker"]["pid"] for m in done.values()}
-    assert not any(psutil.pid_exists(p) and "python" in psutil.Process(p).name() for p in pids)
+    pids = {json.loads(m[1])["worker"]["pid"] for m in done.values()}  # its own LocalCluster (--workers 1) ...
+    assert not any(psutil.pid_exists(p) and "python" in psutil.Process(p).name() for p in pids)  # ... is gone
     assert len(pd.read_csv(out / "properties.csv")) >= 2  # what finished is in the table already
 
     result = run_campaign(path, out, client=client)

@@ -54,15 +54,20 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
         return
     if workers is not None and workers < 1:
         raise ClusterError(f"--workers must be at least 1 (got {workers})")
-    with _sigint_ignored():  # worker processes inherit it: Ctrl-C stops the client, which stops them
-        cluster = LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            silence_logs=logging.ERROR,
-            env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
-        )
+    n = workers or os.cpu_count() or 1
+    try:
+        with _sigint_ignored():  # worker processes inherit it: Ctrl-C stops the client, which stops them
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+                env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
+            )
+    except (OSError, TimeoutError, RuntimeError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ClusterError(f"cannot start a Dask LocalCluster of {n} worker processes: {first}") from None
     try:
         local = Client(cluster, set_as_default=False)
         try:

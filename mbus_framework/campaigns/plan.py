@@ -70,7 +70,7 @@ def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = 
     for i, row in enumerate(campaign.rows):
         by_sample.setdefault(row.sample_id, []).append(i)
     for members in by_sample.values():
-        _check_replicates(campaign, [campaign.rows[i] for i in members], resolved, problems)
+        _check_replicates(campaign, members, resolved, problems)
     tasks: list[SampleTask] = []
     labels: dict[str, str] = {}
     runs = Path(out_dir).resolve() / "runs"
@@ -133,12 +133,15 @@ def _blame(path: str, row: SheetRow) -> str | None:
     return None
 
 
-def _check_replicates(campaign: Campaign, rows: list[SheetRow], resolved, problems: Problems) -> None:
-    """Replicates of one sample share its group labels; averaged replicates share every setting
-    but the backend (each is its own record) and, being one fit, their covariates."""
-    first = rows[0]
-    averaged = campaign.spec.replicates == "average" and len(rows) > 1
-    for row in rows[1:]:
+def _check_replicates(campaign: Campaign, members: list[int], resolved, problems: Problems) -> None:
+    """Replicates of one sample (rows ``members``) share its group labels; averaged replicates
+    share every setting but the backend (each is its own record) and, being one fit, their
+    covariates."""
+    i = members[0]
+    first = campaign.rows[i]
+    averaged = campaign.spec.replicates == "average" and len(members) > 1
+    for j in members[1:]:
+        row = campaign.rows[j]
         for name, value in row.groups.items():
             if value != first.groups.get(name):
                 problems.add(f"{row.at(name)}: sample '{row.sample_id}' is '{first.groups.get(name)}' on "
@@ -150,7 +153,6 @@ def _check_replicates(campaign: Campaign, rows: list[SheetRow], resolved, proble
                 problems.add(f"{row.at(name)}: replicates of sample '{row.sample_id}' are averaged into one fit "
                              f"(campaign.replicates: average), so they share one value ({first.covariates.get(name)!r} "
                              f"on {first.where.rpartition(': ')[2]})")
-        i, j = campaign.rows.index(first), campaign.rows.index(row)
         if i in resolved and j in resolved and _without_backend(resolved[i][0]) != _without_backend(resolved[j][0]):
             keys = sorted(k for k in set(row.overrides) | set(first.overrides)
                           if not k.startswith("backend.") and row.overrides.get(k) != first.overrides.get(k))
