@@ -28,6 +28,7 @@ def property_plots(df, summary, groups: Sequence[str], quantities: Sequence[str]
         values = pd.to_numeric(df[q], errors="coerce").to_numpy(float)
         lo = pd.to_numeric(df.get(f"{q}_ci_low"), errors="coerce") if f"{q}_ci_low" in df else None
         hi = pd.to_numeric(df.get(f"{q}_ci_high"), errors="coerce") if f"{q}_ci_high" in df else None
+        label = "each fit, 95 % interval"
         for g in order:
             rows = np.flatnonzero((labels == g) & ok & np.isfinite(values))
             if not rows.size:
@@ -37,13 +38,15 @@ def property_plots(df, summary, groups: Sequence[str], quantities: Sequence[str]
             if lo is not None and hi is not None:
                 err = np.vstack([v - lo.to_numpy(float)[rows], hi.to_numpy(float)[rows] - v])
                 err = np.where(np.isfinite(err), np.clip(err, 0, None), 0.0)
-                ax.errorbar(x, v, yerr=err, fmt="o", ms=3, color="tab:blue", alpha=0.6, elinewidth=0.8, capsize=1.5)
+                ax.errorbar(x, v, yerr=err, fmt="o", ms=3, color="tab:blue", alpha=0.6, elinewidth=0.8, capsize=1.5,
+                            label=label)
             else:
-                ax.plot(x, v, "o", ms=3, color="tab:blue", alpha=0.6)
+                ax.plot(x, v, "o", ms=3, color="tab:blue", alpha=0.6, label=label)
+            label = None
         s = summary.set_index(np.array(group_labels(summary, groups), dtype=object))
         xs = [x_of[g] for g in order]
         ax.errorbar(np.array(xs) + 0.32, s.loc[order, f"{q}_mean"], yerr=s.loc[order, f"{q}_sd"].fillna(0.0),
-                    fmt="s", color="k", ms=5, capsize=3, label="group mean +- 1 SD")
+                    fmt="s", color="k", ms=5, capsize=3, label="group mean ± 1 SD")
         if f"{q}_true_mean" in s:
             ax.plot(np.array(xs) + 0.32, s.loc[order, f"{q}_true_mean"], "x", color="tab:red", ms=8, label="mean truth")
         ax.set_xticks(xs, order, rotation=30 if len(order) > 4 else 0, ha="right" if len(order) > 4 else "center")

@@ -64,25 +64,31 @@ def summary_text(summary, groups: Sequence[str], quantities: Sequence[str], titl
     width = max([len(" / ".join(names)), *map(len, label)]) + 2
     scales = {q: _scale(summary[f"{q}_mean"]) for q in quantities}
     heads = [f"{q} x1e{scales[q]}" if scales[q] else q for q in quantities]
-    col = max(18, *(len(h) + 2 for h in heads))
     has_density = "density" in summary and summary["density"].notna().any()
-    lines = [title, "  mean (SD as % of mean) of each group's fitted rows", ""]
-    lines.append("  " + " / ".join(names).ljust(width) + f"{'n':>4}" + (f"{'density':>10}" if has_density else "")
-                 + "".join(h.rjust(col) for h in heads))
-    for lab, (_, r) in zip(label, summary.iterrows()):
+    rows, errors = [], []
+    for _, r in summary.iterrows():
         cells = []
         for q in quantities:
             m, sp = r[f"{q}_mean"], r[f"{q}_sd_percent"]
             cells.append((f"{m / 10 ** scales[q]:.3g}" + (f" ({sp:.2f}%)" if sp == sp else "")) if m == m else "-")
-        fails = f"  ({int(r['n_failed'])} failed)" if r["n_failed"] else ""
+        rows.append(cells)
+        errors.append([f"{r[f'{q}_error_percent']:+.2f}%" if r.get(f"{q}_error_percent", math.nan) == r.get(
+            f"{q}_error_percent", math.nan) else "-" for q in quantities])
+    cols = [max(len(heads[k]), *(len(c[k]) for c in rows + errors)) + 3 for k in range(len(quantities))]
+    lead = 4 + (10 if has_density else 0)
+
+    def line(start: str, middle: str, cells: list[str], end: str = "") -> str:
+        return "  " + start.ljust(width) + middle + "".join(c.rjust(w) for c, w in zip(cells, cols)) + end
+
+    lines = [title, "  mean (SD as % of mean) of each group's fitted rows", ""]
+    lines.append(line(" / ".join(names), f"{'n':>4}" + (f"{'density':>10}" if has_density else ""), heads))
+    for lab, cells, (_, r) in zip(label, rows, summary.iterrows()):
         density = (f"{r['density']:>10.4g}" if r["density"] == r["density"] else f"{'-':>10}") if has_density else ""
-        lines.append("  " + lab.ljust(width) + f"{int(r['n']):>4}" + density + "".join(c.rjust(col) for c in cells) + fails)
+        fails = f"  ({int(r['n_failed'])} failed)" if r["n_failed"] else ""
+        lines.append(line(lab, f"{int(r['n']):>4}" + density, cells, fails))
     if any(f"{q}_error_percent" in summary for q in quantities):
         lines += ["", "  error of the group mean against the mean truth (simulated samples)"]
-        for lab, (_, r) in zip(label, summary.iterrows()):
-            cells = [f"{r[f'{q}_error_percent']:+.2f}%" if f"{q}_error_percent" in r and r[f"{q}_error_percent"] == r[f"{q}_error_percent"]
-                     else "-" for q in quantities]
-            lines.append("  " + lab.ljust(width) + " " * (4 + (10 if has_density else 0)) + "".join(c.rjust(col) for c in cells))
+        lines += [line(lab, " " * lead, cells) for lab, cells in zip(label, errors)]
     return "\n".join(lines)
 
 
