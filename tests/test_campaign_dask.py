@@ -73,6 +73,7 @@ def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run, cl
     assert {m["worker"]["pid"] for m in markers.values()} <= workers  # fitted in the cluster's worker processes
     meta = json.loads((out / "campaign.json").read_text())
     assert meta["status"] == "finished" and meta["fitted"] == 3 and meta["failed"] == 0
+    assert meta["cluster"]["workers"] == 2
     table = pd.read_parquet(out / "properties.parquet")
     params = ["k_sigma", "b_sigma", "k_tau", "b_tau"]
     assert list(table.columns) == [  # docs/campaign-table.md

@@ -127,6 +127,7 @@ def run_campaign(
         with CampaignProgress(len(todo), f"{campaign.name}{reused}", progress) as bar:
             if todo:
                 with dask_client(cluster["workers"], cluster["scheduler"], client) as dask:
+                    cluster["workers"] = len(dask.scheduler_info().get("workers", {})) or cluster["workers"]
                     if importlib.util.find_spec("bokeh") is not None:  # the dashboard needs bokeh
                         cluster["dashboard"] = getattr(dask, "dashboard_link", None)
                     run_all(dask, run_task, todo, done, name=lambda t: t.label)
