@@ -44,7 +44,9 @@ class CampaignInterrupted(KeyboardInterrupt):
 
 @dataclass
 class CampaignResult:
-    """What a campaign produced. ``table`` is the campaign table (pandas DataFrame)."""
+    """What a campaign produced. ``table`` is the campaign table (pandas DataFrame);
+    ``fit_phase_s`` the wall time from the first fit submitted to the last one back (cluster
+    start-up, validation and the outputs excluded), ``wall_time_s`` the whole campaign's."""
 
     campaign: Campaign
     out_dir: Path
@@ -56,6 +58,7 @@ class CampaignResult:
     files: dict[str, Path] = field(default_factory=dict)
     interrupted: bool = False
     wall_time_s: float = 0.0
+    fit_phase_s: float = 0.0
 
     @property
     def failed(self) -> list[str]:
@@ -130,7 +133,11 @@ def run_campaign(
                     cluster["workers"] = len(dask.scheduler_info().get("workers", {})) or cluster["workers"]
                     if importlib.util.find_spec("bokeh") is not None:  # the dashboard needs bokeh
                         cluster["dashboard"] = getattr(dask, "dashboard_link", None)
-                    run_all(dask, run_task, todo, done, name=lambda t: t.label)
+                    t_fits = time.perf_counter()
+                    try:
+                        run_all(dask, run_task, todo, done, name=lambda t: t.label)
+                    finally:
+                        result.fit_phase_s = time.perf_counter() - t_fits
     except KeyboardInterrupt:
         result.interrupted = True
         for task in todo:  # fits that finished on a worker while the client was stopping
@@ -181,6 +188,7 @@ def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float) -
         "failed": len(result.failed) if table is not None else None,
         "failed_runs": result.failed if table is not None else None,
         "wall_time_s": time.perf_counter() - t0,
+        "fit_phase_s": result.fit_phase_s,
         "cluster": {k: v for k, v in cluster.items() if v is not None},
         "machine": machine_info(),
     })
