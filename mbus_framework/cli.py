@@ -1,6 +1,7 @@
 """``mbus-run``: run an identification from a YAML config.
 
     mbus-run CONFIG [-o OUTDIR] [--set dotted.key=value ...] [--no-plots] [--quiet]
+    mbus-run CAMPAIGN.yaml [-o DIR] [--workers N] [--scheduler ADDRESS]
     mbus-run --list-plugins
 
 A plain fit goes through the Python API (:func:`mbus_framework.run_config`), so the command line and
@@ -62,6 +63,8 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="rank candidate excitations by D-optimality for the config's model and transducer band",
     )
+    p.add_argument("--workers", type=int, metavar="N", help="campaigns and studies: Dask LocalCluster worker processes (default: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="campaigns and studies: run on the Dask cluster at this address (tcp://host:8786)")
     p.add_argument("--no-plots", action="store_true", help="do not draw figures (PNGs; report.html without plots)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
@@ -93,7 +96,8 @@ def _special_mode(args, progress) -> str | None:
         from mbus_framework.studies.runner import run_study
 
         result = run_study(
-            args.study, args.config, args.overrides, args.out, progress, **parse_study_options(args.study_options)
+            args.study, args.config, args.overrides, args.out, progress, distributed=True, workers=args.workers,
+            scheduler=args.scheduler, **parse_study_options(args.study_options)
         )
         return result.text
     if args.compare_models:
@@ -127,6 +131,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
+        from mbus_framework.campaigns.spec import is_campaign_file
+
+        if is_campaign_file(args.config):
+            from mbus_framework.campaigns.cli import run_from_cli
+
+            return run_from_cli(args)
         from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
 

@@ -9,6 +9,7 @@ import platform
 import shutil
 import tempfile
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -72,12 +73,24 @@ def machine_info() -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------
 @dataclass
 class _Context:
+    """What a study uses to run its member runs: in this process, or on Dask with ``client``.
+
+    On Dask, :meth:`plan_ahead` first runs the study once with placeholder (failed) records to
+    learn which runs it asks for before it has any result, and submits them all at once; the
+    real pass then collects them (and runs on demand whatever depends on earlier results, such
+    as the element sweep's warm starts). The numbers are the same as in-process.
+    """
+
     kind: str
     config_path: str
     overrides: list[str]
     out_dir: Path
     progress: Progress | None
     options: Any
+    client: Any = None
+    _planning: bool = False
+    _requests: list = field(default_factory=list)
+    _pending: dict = field(default_factory=dict)
 
     def run(self, label: str, extra: list[str], keep_outcome: Callable | None = None) -> dict[str, Any]:
         """One identification with ``extra`` overrides; returns its compact record.
@@ -85,42 +98,102 @@ class _Context:
         ``keep_outcome(outcome, record)`` may add to the record while the outcome is alive.
         An :class:`EstimationError` is recorded (``ok: false``), not raised.
         """
-        from mbus_framework.pipeline.run import execute
-
+        if self._planning:
+            self._requests.append((label, tuple(extra)))
+            return {"label": label, "overrides": list(extra), "ok": False, "error": "planning", "wall_time_s": 0.0}
         dest = self.out_dir / "runs" / label
-        record: dict[str, Any] = {"label": label, "overrides": list(extra)}
-        t0 = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="mbus-study-") as tmp:
-            run_dir = dest if self.options.keep_runs else Path(tmp) / label
-            if dest.exists() and self.options.keep_runs:
-                shutil.rmtree(dest)
-            try:
-                outcome = execute(self.config_path, self.overrides + extra, run_dir, progress=None, plots=False)
-            except EstimationError as exc:
-                record.update(ok=False, error=str(exc), wall_time_s=time.perf_counter() - t0)
-                return record
-            record.update(ok=True, **compact_record(outcome.result))
-            record["wall_time_s"] = time.perf_counter() - t0
-            if keep_outcome is not None:
-                keep_outcome(outcome, record)
-            if not self.options.keep_runs:
-                dest.mkdir(parents=True, exist_ok=True)
-                for name in ("result.json", "config.yaml"):
-                    if (run_dir / name).exists():
-                        shutil.copyfile(run_dir / name, dest / name)
+        if self.client is None:
+            return run_member(self.config_path, self.config_path, self.overrides, extra, dest, self.options.keep_runs,
+                              keep_outcome)
+        future = self._pending.pop((label, tuple(extra)), None) or self._submit(label, extra)
+        record, shipped = future.result()
+        if keep_outcome is not None and shipped is not None:
+            keep_outcome(self._outcome(extra, dest, *shipped), record)
         return record
 
+    def plan_ahead(self, study: Callable) -> None:
+        """Submit every run ``study`` asks for before seeing a result (see the class docstring)."""
+        self._planning = True
+        try:
+            study(self)
+        except Exception:  # noqa: BLE001 - the placeholders make a study give up; its real pass reports
+            pass
+        finally:
+            self._planning = False
+        for label, extra in dict.fromkeys(self._requests):
+            self._pending[label, extra] = self._submit(label, list(extra))
+        self._requests.clear()
+
+    def cancel_pending(self) -> None:
+        """Cancel submitted runs the study did not collect (after an error or Ctrl-C)."""
+        if self._pending and self.client is not None:
+            self.client.cancel(list(self._pending.values()), force=True)
+        self._pending.clear()
+
+    def _submit(self, label: str, extra: list[str]):
+        from mbus_framework.pipeline.config import read_yaml
+
+        dest = self.out_dir / "runs" / label
+        mapping = read_yaml(self.config_path)
+        return self.client.submit(run_member, mapping, self.config_path, self.overrides, list(extra), dest,
+                                  self.options.keep_runs, None, True, key=f"mbus-study-{label}-{uuid.uuid4().hex[:8]}",
+                                  pure=False)
+
+    def _outcome(self, extra: list[str], dest: Path, measurement, fit, result):
+        """The run's outcome rebuilt here from what the worker sent (for ``keep_outcome``)."""
+        from mbus_framework.pipeline.components import build_components
+        from mbus_framework.pipeline.run import RunOutcome
+
+        config = load_config(self.config_path, self.overrides + list(extra))
+        return RunOutcome(dest, build_components(config, self.config_path), measurement, fit, result)
+
     def start(self, total: int) -> None:
-        if self.progress:
+        if self.progress and not self._planning:
             self.progress.start(f"study {self.kind}", total=total)
 
     def advance(self, note: str) -> None:
-        if self.progress:
+        if self.progress and not self._planning:
             self.progress.advance(1, note)
 
     def stop(self) -> None:
-        if self.progress:
+        if self.progress and not self._planning:
             self.progress.stop()
+
+
+def run_member(config, source: str, overrides: list[str], extra: list[str], dest: Path, keep_runs: bool,
+               keep_outcome: Callable | None = None, ship: bool = False):
+    """One member run of a study (here or on a Dask worker) into ``dest``; returns its compact
+    record, or ``(record, (measurement, fit, result))`` with ``ship`` (None for a failed run).
+
+    ``config`` is the base config file or its mapping (``source`` names it); ``keep_runs``
+    keeps the whole run folder, otherwise only result.json and config.yaml.
+    """
+    from mbus_framework.pipeline.run import execute
+
+    record: dict[str, Any] = {"label": dest.name, "overrides": list(extra)}
+    shipped = None
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="mbus-study-") as tmp:
+        run_dir = dest if keep_runs else Path(tmp) / dest.name
+        if dest.exists() and keep_runs:
+            shutil.rmtree(dest)
+        try:
+            outcome = execute(config, overrides + list(extra), run_dir, progress=None, plots=False, source=source)
+        except EstimationError as exc:
+            record.update(ok=False, error=str(exc), wall_time_s=time.perf_counter() - t0)
+            return (record, None) if ship else record
+        record.update(ok=True, **compact_record(outcome.result))
+        record["wall_time_s"] = time.perf_counter() - t0
+        if keep_outcome is not None:
+            keep_outcome(outcome, record)
+        if ship:
+            shipped = (outcome.measurement, outcome.fit, outcome.result)
+        if not keep_runs:
+            dest.mkdir(parents=True, exist_ok=True)
+            for name in ("result.json", "config.yaml"):
+                if (run_dir / name).exists():
+                    shutil.copyfile(run_dir / name, dest / name)
+    return (record, shipped) if ship else record
 
 
 def compact_record(result: dict[str, Any]) -> dict[str, Any]:

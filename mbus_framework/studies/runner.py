@@ -19,6 +19,11 @@ Three kinds, each ``run_study(kind, config, overrides, out_dir, progress, **opti
     Different PRBS realisations of the same bandwidth (``excitation.options.shift``, and a new
     noise seed for a simulated rig): each property's mean and std/mean (Table 3.2).
 
+Member runs run in this process, or on Dask distributed (``distributed=True``, ``workers``,
+``scheduler`` or ``client``; ``mbus-run --study`` always does): a LocalCluster with one worker
+process per core by default, the same executor as campaigns (:mod:`mbus_framework.campaigns`),
+with the same numbers.
+
 Every study writes into its folder ``<kind>.csv`` (the table), ``<kind>.json`` (summary,
 table, options, the compact record of every run), ``<kind>.png`` (plot) and ``runs/<label>/``
 with each run's ``result.json`` and ``config.yaml`` (the whole run folder with
@@ -32,6 +37,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -64,13 +70,20 @@ def run_study(
     overrides: list[str] | None = None,
     out_dir: str | Path | None = None,
     progress: Progress | None = None,
+    *,
+    distributed: bool = False,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
     **options: Any,
 ) -> StudyResult:
     """Run study ``kind`` over the base config (with ``--set``-style ``overrides``).
 
     ``out_dir`` defaults to ``<output.directory>/<date-time>-<config>-<kind>``. ``options``
     are the kind's options (see ``MonteCarloOptions``, ``ElementSweepOptions``,
-    ``RepeatabilityOptions``); bad options raise :class:`ConfigError`.
+    ``RepeatabilityOptions``); bad options raise :class:`ConfigError`. The member runs go to
+    Dask when ``distributed`` is true or ``workers``, ``scheduler`` or ``client`` (an existing
+    ``distributed.Client``) is given; otherwise they run one after another in this process.
     """
     opts = validate_study_options(kind, options)
     overrides = list(overrides or [])
@@ -80,10 +93,17 @@ def run_study(
         out_dir = Path(config.output.directory) / f"{stamp}-{Path(config_path).stem}-{kind}"
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ctx = _Context(kind, str(config_path), overrides, out, progress, opts)
     t0 = time.perf_counter()
     study = {"monte_carlo": _monte_carlo, "element_sweep": _element_sweep, "repeatability": _repeatability}[kind]
-    rows, summary, runs, text, fig = study(ctx)
+    on_dask = distributed or client is not None or workers is not None or scheduler is not None
+    with _executor(on_dask, workers, scheduler, client) as dask:
+        ctx = _Context(kind, str(config_path), overrides, out, progress, opts, client=dask)
+        try:
+            if dask is not None:
+                ctx.plan_ahead(study)
+            rows, summary, runs, text, fig = study(ctx)
+        finally:
+            ctx.cancel_pending()
     text += f"\n\n  written to {out}/: {kind}.csv (table), {kind}.json (summary and every run), " + (
         f"{kind}.png (plot), runs/ (each run's result.json)" if fig is not None else "runs/")
     summary = {
@@ -107,3 +127,15 @@ def run_study(
     if fig is not None:
         files["png"] = _save_figure(fig, out / f"{kind}.png")
     return StudyResult(kind, out, rows, summary, runs, text, files)
+
+
+@contextmanager
+def _executor(on_dask: bool, workers: int | None, scheduler: str | None, client: Any):
+    """The campaigns' Dask client (None: run in this process)."""
+    if not on_dask:
+        yield None
+        return
+    from mbus_framework.campaigns.executor import dask_client
+
+    with dask_client(workers, scheduler, client) as dask:
+        yield dask

@@ -1,0 +1,217 @@
+"""Running a campaign: validate everything, reuse finished fits, fit the rest on Dask, write
+the table, the group summary and the plots.
+
+Campaign folder (default ``<base output.directory>/<campaign name>``, so a re-run continues)::
+
+    campaign.json                  what ran: counts, timing, groups, the cluster
+    properties.csv / .parquet      the campaign table, one row per sample (or replicate)
+    samples.csv / .parquet         replicates: fit only: per-sample mean, SD and SE of the mean
+    group_summary.csv / .txt       Tables 4.2/4.3 layout
+    plots/<property>_by_group.png
+    runs/<sample>[-r<k>]/          each fit's usual run folder (+ campaign_row.json when done)
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import importlib.util
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mbus_framework import __version__
+from mbus_framework.campaigns.executor import dask_client, run_all
+from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
+from mbus_framework.campaigns.problems import Problems
+from mbus_framework.campaigns.progress import CampaignProgress
+from mbus_framework.campaigns.replicates import aggregate_replicates
+from mbus_framework.campaigns.report import CAMPAIGN_JSON, GroupReport, group_report
+from mbus_framework.campaigns.rows import failed_row
+from mbus_framework.campaigns.spec import Campaign, load_campaign
+from mbus_framework.campaigns.table import build_table, parameter_names, property_names, write_table
+from mbus_framework.campaigns.worker import read_marker, run_task
+from mbus_framework.pipeline.storage import atomic_write_json
+from mbus_framework.studies.common import machine_info
+
+
+class CampaignInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a campaign: unfinished fits were cancelled; ``result`` holds what finished."""
+
+    def __init__(self, result: "CampaignResult"):
+        super().__init__(f"interrupted: {result.n_done} of {len(result.tasks)} fits finished; run again to continue")
+        self.result = result
+
+
+@dataclass
+class CampaignResult:
+    """What a campaign produced. ``table`` is the campaign table (pandas DataFrame);
+    ``fit_phase_s`` the wall time from the first fit submitted to the last one back (cluster
+    start-up, validation and the outputs excluded), ``wall_time_s`` the whole campaign's."""
+
+    campaign: Campaign
+    out_dir: Path
+    tasks: list[SampleTask]
+    table: Any
+    fitted: list[str] = field(default_factory=list)
+    reused: list[str] = field(default_factory=list)
+    report: GroupReport | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+    interrupted: bool = False
+    wall_time_s: float = 0.0
+    fit_phase_s: float = 0.0
+
+    @property
+    def failed(self) -> list[str]:
+        """Labels of the rows with an error."""
+        if self.table is None or not len(self.table):
+            return []
+        return list(self.table.loc[self.table["error"].notna(), "run_dir"])
+
+    @property
+    def n_done(self) -> int:
+        return len(self.fitted) + len(self.reused)
+
+
+def default_out_dir(campaign: Campaign) -> Path:
+    output = campaign.base.get("output") if isinstance(campaign.base.get("output"), dict) else {}
+    return Path(output.get("directory") or "runs") / campaign.name
+
+
+def run_campaign(
+    path: str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    overrides: list[str] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    plots: bool | None = None,
+    progress: bool | None = None,
+) -> CampaignResult:
+    """Run every sample of the campaign file ``path`` (see the module docstring).
+
+    ``overrides`` (``--set`` style) apply to the base config; ``workers``/``scheduler`` beat the
+    campaign's keys; ``client`` is an existing ``distributed.Client`` to use as it is; ``plots``
+    (None: the config's ``output.plots``) is for each sample's run folder; ``progress``
+    (None: on a terminal) shows the bar. Every problem of the campaign file, the sheet and the
+    samples' run configs is raised (:class:`CampaignError`) before anything is fitted. Ctrl-C
+    cancels the unfinished fits, writes what finished and raises :class:`CampaignInterrupted`.
+    """
+    t0 = time.perf_counter()
+    problems = Problems()
+    campaign = load_campaign(path, overrides, problems)
+    out = Path(out_dir) if out_dir is not None else default_out_dir(campaign)
+    tasks = plan_campaign(campaign, out, plots, problems)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: dict[str, dict] = {}
+    result = CampaignResult(campaign, out, tasks, None)
+    todo = []
+    for task in tasks:
+        stored = read_marker(task.run_dir, task.key)
+        if stored is not None:
+            rows[task.label] = stored
+            result.reused.append(task.label)
+        else:
+            todo.append(task)
+    cluster = {"scheduler": scheduler or campaign.spec.scheduler, "workers": workers or campaign.spec.workers}
+    _write_meta(result, cluster, "running", t0)
+
+    def done(task: SampleTask, value: Any) -> None:
+        if isinstance(value, BaseException):
+            rows[task.label] = failed_row(task, f"the Dask task failed: {type(value).__name__}: {value}",
+                                          str(Path("runs") / task.label))
+        else:
+            rows[task.label] = value["row"]
+        result.fitted.append(task.label)
+        bar.finished(rows[task.label]["error"] is not None)
+
+    reused = f" ({len(result.reused)} reused)" if result.reused else ""
+    try:
+        with CampaignProgress(len(todo), f"{campaign.name}{reused}", progress) as bar:
+            if todo:
+                with dask_client(cluster["workers"], cluster["scheduler"], client) as dask:
+                    cluster["workers"] = len(dask.scheduler_info().get("workers", {})) or cluster["workers"]
+                    if importlib.util.find_spec("bokeh") is not None:  # the dashboard needs bokeh
+                        cluster["dashboard"] = getattr(dask, "dashboard_link", None)
+                    t_fits = time.perf_counter()
+                    try:
+                        run_all(dask, run_task, todo, done, name=lambda t: t.label)
+                    finally:
+                        result.fit_phase_s = time.perf_counter() - t_fits
+    except KeyboardInterrupt:
+        result.interrupted = True
+        for task in todo:  # fits that finished on a worker while the client was stopping
+            stored = read_marker(task.run_dir, task.key) if task.label not in rows else None
+            if stored is not None:
+                rows[task.label] = stored
+                result.fitted.append(task.label)
+    _finish(result, rows, cluster, t0)
+    if result.interrupted:
+        raise CampaignInterrupted(result)
+    return result
+
+
+def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: float) -> None:
+    """Write the table(s), the group summary and campaign.json from the rows that finished."""
+    campaign, out = result.campaign, result.out_dir
+    spec = campaign.spec
+    result.table = build_table([rows[t.label] for t in result.tasks if t.label in rows], spec.groups, spec.covariates)
+    result.files.update(write_table(result.table, out))
+    if len(result.table) and result.tasks[0].replicates == FITTED:
+        quantities = parameter_names(result.table) + property_names(result.table)
+        quantities += [c for c in result.table.columns if c.startswith("true_")]
+        samples = aggregate_replicates(result.table, ["sample_id", *spec.groups], quantities)
+        result.files.update(write_table(samples, out, "samples"))
+    result.report = group_report(result.table, spec.groups, out, campaign.title)
+    result.files.update(result.report.files)
+    result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
+    result.wall_time_s = time.perf_counter() - t0
+    result.files["campaign_json"] = _write_meta(result, cluster, "interrupted" if result.interrupted else "finished", t0)
+
+
+def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float) -> Path:
+    c = result.campaign
+    table = result.table
+    return atomic_write_json(result.out_dir / CAMPAIGN_JSON, {
+        "campaign": str(c.path),
+        "title": c.title,
+        "status": status,
+        "created": _dt.datetime.now().isoformat(timespec="seconds"),
+        "mbus_version": __version__,
+        "base": str(c.base_source),
+        "groups": c.spec.groups,
+        "covariates": c.spec.covariates,
+        "replicates": c.spec.replicates,
+        "n_fits": len(result.tasks),
+        "fitted": len(result.fitted),
+        "reused": len(result.reused),
+        "failed": len(result.failed) if table is not None else None,
+        "failed_runs": result.failed if table is not None else None,
+        "wall_time_s": time.perf_counter() - t0,
+        "fit_phase_s": result.fit_phase_s,
+        "cluster": {k: v for k, v in cluster.items() if v is not None},
+        "machine": machine_info(),
+    })
+
+
+def summary_text(result: CampaignResult) -> str:
+    """What ``mbus-run CAMPAIGN`` prints at the end."""
+    c = result.campaign
+    how = "replicates averaged before fitting" if c.spec.replicates == "average" else "each replicate fitted"
+    failed = result.failed
+    lines = [
+        f"mbus campaign: {c.title}",
+        f"  {len(result.tasks)} fits ({how}): {len(result.fitted)} run now, {len(result.reused)} reused from an "
+        f"earlier run, {len(failed)} failed" + ("; INTERRUPTED, run again to continue" if result.interrupted else ""),
+    ]
+    if failed:
+        errors = dict(zip(result.table["run_dir"], result.table["error"]))
+        for run in failed[:10]:
+            lines.append(f"    {Path(run).name}: {errors[run]}")
+        if len(failed) > 10:
+            lines.append(f"    ... and {len(failed) - 10} more (column 'error' of properties.csv)")
+    if result.report is not None and len(result.table):
+        lines += ["", result.report.text]
+    lines += ["", f"  written to {result.out_dir}/: properties.csv, properties.parquet, group_summary.csv, plots/, "
+                  f"runs/ ({result.wall_time_s:.1f} s)"]
+    return "\n".join(lines)
