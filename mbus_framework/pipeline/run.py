@@ -5,8 +5,6 @@ config -> components -> acquisition (saved to disk first) -> compensation -> est
 """
 from __future__ import annotations
 
-import datetime as _dt
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -16,12 +14,14 @@ import yaml
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Measurement
 from mbus_framework.pipeline.config import RunConfig, apply_overrides, load_config, validate_structure
-from mbus_framework.errors import ConfigError, EstimationError
+from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.estimation.nuisance import NuisanceSettings
-from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.registry import Registry, default_registry
 from mbus_framework.pipeline.components import Components, build_components
+from mbus_framework.pipeline import interrupts, limits
 from mbus_framework.pipeline.results import build_result
+from mbus_framework.pipeline.run_folder import RunFolder, default_name
 from mbus_framework.estimation.problem import FitProblem, FitResult, Progress
 from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
 
@@ -38,9 +38,8 @@ class RunOutcome:
 
 
 def new_run_dir(config: RunConfig, source: str) -> Path:
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(source).stem).strip("_.") or "run"
-    base = Path(config.output.directory) / f"{stamp}-{name}"
+    """A free default folder name (not reserved: runs reserve theirs with :class:`RunFolder`)."""
+    base = Path(config.output.directory) / default_name(source)
     path, k = base, 1
     while path.exists():
         k += 1
@@ -51,7 +50,7 @@ def new_run_dir(config: RunConfig, source: str) -> Path:
 def acquire(c: Components, run_dir: Path, waveform: Waveform) -> Measurement:
     """Acquire and write the raw record (and its metadata) before anything is fitted."""
     context = AcquisitionContext(waveform, c.sample, c.model, c.registry, run_dir, c.source)
-    m = c.backend.acquire(context)
+    m = limits.checked_measurement(c.backend.acquire(context), c)
     write_waveforms(run_dir / MEASUREMENT_FILE, m.t, m.u, m.y)
     atomic_write_json(run_dir / "measurement.json", {"truth": m.truth, "meta": m.meta, "n_samples": len(m.t), "dt_s": m.dt})
     return m
@@ -107,9 +106,14 @@ def execute(
     registry: Registry | None = None,
     plots: bool | None = None,
     source: str | None = None,
+    overwrite: bool = False,
 ) -> RunOutcome:
     """Run one identification from a config file, or from a config mapping (``source`` names
-    it in error messages and the default run-folder name); returns everything it produced."""
+    it in error messages and the default run-folder name); returns everything it produced.
+
+    The run folder (``out_dir``, default a new ``<output.directory>/<date-time>-<config>``) is
+    reserved exclusively (:class:`~mbus_framework.pipeline.run_folder.RunFolder`); a folder that
+    already holds a run is replaced only with ``overwrite``."""
     if isinstance(config_path, Mapping):
         source = source or "<config>"
         data = apply_overrides(dict(config_path), overrides or [])
@@ -117,21 +121,29 @@ def execute(
     else:
         source = source or str(config_path)
         config = load_config(config_path, overrides)
-    c = build_components(config, source, registry)
-    if c.config.model.initial:  # fail on bad initial values before acquiring anything
-        c.model.theta_from_mapping(c.config.model.initial, f"{source}: model.initial")
-    waveform = c.excitation.waveform()
-    run_dir = Path(out_dir) if out_dir else new_run_dir(config, source)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    registry = registry or default_registry()
+    with limits.plugin_failures(registry, source):  # a third-party plugin's bug is one named line
+        c = build_components(config, source, registry)
+        limits.check_run(c)  # initial values, parameter ranges, memory: before anything is allocated
+        waveform = limits.checked_waveform(c)
+    folder = RunFolder.create(out_dir, parent=config.output.directory, source=source, overwrite=overwrite)
+    with folder, limits.plugin_failures(registry, source):
+        return _run(c, folder.path, waveform, progress, plots)
+
+
+def _run(c: Components, run_dir: Path, waveform: Waveform, progress: Progress | None, plots: bool | None) -> RunOutcome:
+    """The stages of :func:`execute` inside the reserved run folder."""
+    config = c.config
     atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
 
     measurement = acquire(c, run_dir, waveform)
+    interrupts.check()
     compensated = c.compensator.apply(measurement)
     problem = make_problem(c, compensated)
-    try:
-        fit = c.solver.solve(problem, progress)
-    except np.linalg.LinAlgError as exc:
-        raise EstimationError(f"{source}: estimation failed: {exc}") from None
+    interrupts.check()
+    with limits.estimation_boundary(c):
+        fit = c.solver.solve(problem, interrupts.CheckedProgress(progress))
+    interrupts.check()
     result = build_result(c, measurement, problem, fit, waveform, compensated.meta.get("compensation"))
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
