@@ -38,6 +38,7 @@ from scipy import fft as sfft
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.pipeline.config import validate_options
+from mbus_framework.pipeline.limits import check_parameters
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.estimation.nuisance import delayed_prediction
@@ -79,7 +80,7 @@ class SimulatedOptions(BaseModel):
     truth: dict[str, float] = Field(description="true parameters, or true material properties, of the medium")
     medium: MediumRef | None = Field(None, description="true medium model if not the fitted one")
     noise: NoiseOptions = Field(default_factory=NoiseOptions)
-    seed: int = Field(0, description="seed of the noise generator")
+    seed: int = Field(0, ge=0, description="seed of the noise generator (numpy seeds are non-negative)")
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold used to simulate the truth")
     input_gain: float = Field(1.0, gt=0, description="true force per recorded input unit [N/unit]")
     delay: float = Field(0.0, ge=0, description="true trigger offset of the received wave [s]")
@@ -144,9 +145,15 @@ class SimulatedBackend(Backend):
                     spec.implementation.Options, o.medium.options, "backend.options.medium.options"
                 )
                 medium = spec.implementation(context.sample, opts)
-            theta = medium.theta_from_mapping(o.truth, "backend.options.truth")
+            where = f"{context.config_path}: backend.options.truth"
+            theta = medium.theta_from_mapping(o.truth, where)
+            check_parameters(medium, dict(zip(medium.parameter_names, theta)), where)
             path = self.pair.around(medium) if self.pair is not None else medium
             total_delay = o.delay + trigger
+            duration = float(t[-1] - t[0])
+            if total_delay >= duration:
+                raise ConfigError(f"{context.config_path}: backend.options.delay: the response arrives {total_delay:g} s "
+                                  f"after the record starts, after its end ({duration:g} s)")
             if total_delay > 0:
                 if o.hold != "zoh":
                     raise ConfigError(f"{context.config_path}: backend.options.delay needs hold: zoh")
