@@ -4,9 +4,10 @@
 :class:`KeyboardInterrupt` (SIGINT, exit status 130) or :class:`Terminated` (SIGTERM, 143, a
 KeyboardInterrupt too, so the same clean-up code handles both). Three guarantees:
 
-* **Stops.** A library may swallow the exception (a few compiled routines print "Exception
-  ignored" and carry on); the signal is remembered, and :func:`check` raises it again at the
-  next checkpoint (each start of the global search, each pipeline stage).
+* **Stops.** A library may swallow the exception (a few compiled routines, such as scipy's
+  Sobol initialisation, report "Exception ignored" and carry on); the signal is remembered,
+  :func:`check` raises it again at the next checkpoint (each start of the global search, each
+  pipeline stage), and the swallowed one is not printed as a traceback.
 * **Files stay whole.** Inside :func:`deferred` (every atomic file write, the status marker
   updates) a signal is held back and raised when the block ends, so no half-written file or
   stray temporary file is left behind.
@@ -16,6 +17,7 @@ KeyboardInterrupt too, so the same clean-up code handles both). Three guarantees
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 from typing import Iterator
@@ -52,12 +54,20 @@ def handling() -> Iterator[None]:
         yield
         return
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous_hook = sys.unraisablehook
     _state.update(installed=True, received=None, depth=0, pending=None)
+
+    def unraisable(info) -> None:
+        if not isinstance(info.exc_value, KeyboardInterrupt):
+            previous_hook(info)  # only our own, swallowed interruption is kept quiet
+
     try:
         for s in previous:
             signal.signal(s, _handler)
+        sys.unraisablehook = unraisable
         yield
     finally:
+        sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, h)
         _state.update(installed=False, depth=0, pending=None)

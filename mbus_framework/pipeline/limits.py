@@ -102,14 +102,18 @@ def check_run(c: "Components") -> None:
 
 
 # -- resources -------------------------------------------------------------------------------
+FIT_OVERHEAD_BYTES = 32 * 2**20
+"""Memory of a fit that does not grow with the record (modules, caches, the start design)."""
+
+
 def fit_bytes(n_samples: int, n_states: int, n_parameters: int) -> int:
-    """Upper estimate of a fit's peak memory [bytes]: 8 bytes x N x (64 + 4 n_x (p + 1)).
+    """Upper estimate of a fit's peak memory [bytes]: 32 MiB + 8 bytes x N x (64 + 4 n_x (p + 1)).
 
     64 doubles per sample cover the record, residuals, Jacobian columns and FFT buffers
-    (measured 80-100 per sample); 4 n_x (p + 1) the state and sensitivity kernels of the
-    simulation's doubling path (the modal path needs less).
+    (measured 80-100 bytes per sample in all); 4 n_x (p + 1) the state and sensitivity kernels
+    of the simulation's doubling path (the modal path needs less).
     """
-    return int(8 * n_samples * (64 + 4 * n_states * (n_parameters + 1)))
+    return int(FIT_OVERHEAD_BYTES + 8 * n_samples * (64 + 4 * n_states * (n_parameters + 1)))
 
 
 def available_memory() -> int | None:
