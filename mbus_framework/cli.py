@@ -183,11 +183,23 @@ def _main(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as exc:
         print(f"mbus-run: {str(exc) or 'interrupted'}", file=sys.stderr)
         return interrupts.exit_status()
+    except OSError as exc:
+        if exc.filename is None:  # not about a file the user named: a bug, reported below
+            return _internal_error(exc)
+        from mbus_framework.errors import one_line
+
+        print(f"mbus-run: error: {one_line(str(exc.filename), 300)}: {exc.strerror or type(exc).__name__}",
+              file=sys.stderr)
+        return 2
     except Exception as exc:  # noqa: BLE001 - last resort: a bug, reported in one line
-        if os.environ.get("MBUS_DEBUG"):
-            raise
-        print(f"mbus-run: internal error: {_bug_report(exc)}", file=sys.stderr)
-        return 70
+        return _internal_error(exc)
+
+
+def _internal_error(exc: Exception) -> int:
+    if os.environ.get("MBUS_DEBUG"):
+        raise exc
+    print(f"mbus-run: internal error: {_bug_report(exc)}", file=sys.stderr)
+    return 70
 
 
 def _bug_report(exc: Exception) -> str:

@@ -193,8 +193,9 @@ def error_lines(err: str) -> list[str]:
     return [line for line in err.splitlines() if not line.startswith("mbus-run: warning: ")]
 
 
-def assert_clean_outcome(o: Outcome, names: list[str]) -> None:
-    """Exit 0, or exit 2/3 with exactly one error line that names one of ``names`` (file or key)."""
+def assert_clean_outcome(o: Outcome, names: list[str], config_text: str = "") -> None:
+    """Exit 0, or exit 2/3 with exactly one error line that names one of ``names`` (file or key),
+    or names what ``config_text`` (a mutated config) gives as a path."""
     assert "Traceback" not in o.err, o.err
     assert all(line.startswith("mbus-run: ") for line in o.err.splitlines()), o.err
     if o.code == 0:
@@ -206,7 +207,8 @@ def assert_clean_outcome(o: Outcome, names: list[str]) -> None:
     line = lines[0]
     assert line.startswith("mbus-run: error: "), line
     assert len(line) <= 1100, line[:300]
-    assert any(n and n in line for n in names), (names, line)
+    subject = line.removeprefix("mbus-run: error: ").split(": ")[0]
+    assert any(n and n in line for n in names) or (subject and subject in config_text), (names, line)
 
 
 def strict_json(path: Path) -> Any:

@@ -151,7 +151,7 @@ def consistent(folder: Path) -> str:
 
 @POSIX
 def test_two_processes_with_the_same_output_folder(tmp_path):
-    path = write_yaml(tmp_path / "run.yaml", SLOW)
+    path = write_yaml(tmp_path / "run.yaml", config())
     out = tmp_path / "same"
     results = start_together(tmp_path, [[path, "-o", out, "-q", "--set", f"title={t}"] for t in ("A", "B")])
     codes = sorted(r.returncode for r in results)
@@ -200,7 +200,7 @@ def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120) -> bool:
     ("run folder created", 0.0),
     ("measurement saved", 0.05),   # about 50 ms into the fit
     ("measurement saved", 0.3),
-    ("measurement saved", 1.0),
+    pytest.param("measurement saved", 1.0, marks=pytest.mark.slow),
 ])
 def test_ctrl_c_at_any_moment_exits_130_and_marks_the_run(tmp_path, moment, after):
     out = tmp_path / "out"

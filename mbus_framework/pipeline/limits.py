@@ -56,8 +56,15 @@ STRATEGY_LIMITS = {
 
 
 # -- parameter values ------------------------------------------------------------------------
+MAX_DECADES = 15
+"""How far (orders of magnitude) a log-scale parameter may lie from the model's typical value."""
+
+
 def check_parameters(model: "MediumModel", values: dict[str, float], where: str) -> None:
-    """Every value finite and inside its parameter's range (log-scale parameters > 0)."""
+    """Every value finite and inside its parameter's range (log-scale parameters > 0), and a
+    log-scale one within :data:`MAX_DECADES` orders of magnitude of the model's typical value
+    for this sample (typical moduli are ~1e9 Pa: 15 decades span every material, from gels to
+    diamond, with room to spare; beyond them the chain's time constants over- or underflow)."""
     by_name = {p.name: p for p in model.parameters}
     for name, value in values.items():
         p = by_name.get(name)
@@ -70,6 +77,10 @@ def check_parameters(model: "MediumModel", values: dict[str, float], where: str)
             raise ConfigError(
                 f"{where}.{name}: {value:g} {p.unit} is outside the physical range {lower}{p.lower:g}, {p.upper:g}] of "
                 f"{p.description or name}")
+        if p.log_scale and p.typical > 0 and abs(np.log10(value / p.typical)) > MAX_DECADES:
+            raise ConfigError(
+                f"{where}.{name}: {value:g} {p.unit} is more than {MAX_DECADES} orders of magnitude from the typical "
+                f"{p.typical:.3g} {p.unit} of this model and sample; no material is that far from it")
 
 
 def check_run(c: "Components") -> None:

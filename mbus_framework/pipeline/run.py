@@ -144,7 +144,8 @@ def _run(c: Components, run_dir: Path, waveform: Waveform, progress: Progress | 
     with limits.estimation_boundary(c):
         fit = c.solver.solve(problem, interrupts.CheckedProgress(progress))
     interrupts.check()
-    result = build_result(c, measurement, problem, fit, waveform, compensated.meta.get("compensation"))
+    with limits.estimation_boundary(c):  # the uncertainty analysis
+        result = build_result(c, measurement, problem, fit, waveform, compensated.meta.get("compensation"))
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
         result["files"]["trace"] = "trace.csv"

@@ -103,10 +103,15 @@ def run_calibration(config_path, overrides=None, out_dir=None, progress=None, ov
     source = str(config_path)
     config = load_config(config_path, overrides)
     opts = parse_options(config.calibration, source)
-    if opts.output and not overwrite:
-        for existing in (Path(opts.output).with_suffix(".npz"), Path(opts.output).with_suffix(".json")):
-            if existing.exists() or existing.is_symlink():
-                raise ConfigError(f"{source}: calibration.output: {existing} exists; pass --overwrite to replace it")
+    if opts.output:
+        try:
+            targets = [Path(opts.output).with_suffix(s) for s in (".npz", ".json")]
+            present = [p for p in targets if p.exists() or p.is_symlink()]
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{source}: calibration.output: not a usable file name ({type(exc).__name__}: "
+                              f"{str(exc)[:80]})") from None
+        if present and not overwrite:
+            raise ConfigError(f"{source}: calibration.output: {present[0]} exists; pass --overwrite to replace it")
     c = build_components(config, source)
     if config.backend.name == "simulated" and getattr(c.backend.options, "wave", None) is None:
         raise ConfigError(
@@ -157,6 +162,10 @@ def _calibrate(config, opts, c, waveform, period, run_dir: Path, source: str, pr
     est = estimate_transfer(
         records, lengths, config.model.hold, period, opts.max_log_se, opts.floor_db, band
     )
+    if not np.any((est.f >= band[0]) & (est.f <= band[1])):
+        raise ConfigError(f"{source}: calibration.band: {band[0]:g}-{band[1]:g} Hz holds no frequency line of the "
+                          f"records ({est.f.size} lines up to {est.f.max(initial=0):g} Hz); widen the band or "
+                          f"lengthen the record")
     truth = getattr(c.backend, "true_transducer_response", None)
     check = compare_with_truth(est.f, est.G_TR, truth(est.f), band) if truth else None
     meta = {

@@ -134,8 +134,17 @@ class SimulatedBackend(Backend):
         t, u = context.excitation.t, np.asarray(context.excitation.u, dtype=float)
         dt = float(t[1] - t[0])
         trigger = o.scope.trigger_delay if o.scope is not None else 0.0
+        duration = float(t[-1] - t[0])
+        if o.delay + trigger >= duration:
+            raise ConfigError(f"{context.config_path}: backend.options.delay / scope.trigger_delay: the response "
+                              f"arrives {o.delay + trigger:g} s after the record starts, after its end ({duration:g} s)")
         if o.wave is not None:
             medium, theta = None, None
+            travel = context.sample.length / o.wave.sound_speed
+            if o.delay + trigger + travel >= duration:
+                raise ConfigError(f"{context.config_path}: backend.options.wave: the wave through {context.sample.length:g} m "
+                                  f"arrives {o.delay + trigger + travel:g} s after the record starts, after its end "
+                                  f"({duration:g} s); lengthen the record")
             y_true = self._wave_response(u, dt, context.sample.length, trigger)
         else:
             medium = context.model
@@ -150,10 +159,6 @@ class SimulatedBackend(Backend):
             check_parameters(medium, dict(zip(medium.parameter_names, theta)), where)
             path = self.pair.around(medium) if self.pair is not None else medium
             total_delay = o.delay + trigger
-            duration = float(t[-1] - t[0])
-            if total_delay >= duration:
-                raise ConfigError(f"{context.config_path}: backend.options.delay: the response arrives {total_delay:g} s "
-                                  f"after the record starts, after its end ({duration:g} s)")
             if total_delay > 0:
                 if o.hold != "zoh":
                     raise ConfigError(f"{context.config_path}: backend.options.delay needs hold: zoh")

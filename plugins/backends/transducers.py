@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import signal as sps
 
 from mbus_framework.interfaces.model import StateSpace
@@ -58,6 +58,18 @@ class TransducerPairOptions(BaseModel):
     gain: float = Field(1.0, gt=0, description="gain at f_c of each transducer [N/V or V/N]")
     order: int = Field(2, ge=1, le=6, description="Butterworth band-pass order N of each (2N poles)")
     mismatch: TransducerMismatch = Field(default_factory=TransducerMismatch)
+
+    @model_validator(mode="after")
+    def _physical(self):
+        if not 1e3 <= self.centre_frequency <= 1e9:
+            raise ValueError(f"centre_frequency {self.centre_frequency:g} Hz is outside 1 kHz - 1 GHz (ultrasonic "
+                             f"transducers)")
+        fraction = self.bandwidth / self.centre_frequency
+        if not 0.01 <= fraction < 2.0:
+            raise ValueError(f"bandwidth {self.bandwidth:g} Hz is {fraction:.3g} x centre_frequency; a band-pass "
+                             f"transducer's fractional bandwidth lies in [0.01, 2) (the lower -3 dB edge must stay "
+                             f"above 0 Hz)")
+        return self
 
 
 class ScopeOptions(BaseModel):

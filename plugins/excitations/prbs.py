@@ -77,7 +77,7 @@ class Prbs(DesignedExcitation):
         levels = 2.0 * mls_bits(o.order) - 1.0
         p = levels.size
         # Bit index of each time; the tiny offset keeps exact edges on the new bit.
-        j = (np.floor(np.asarray(t) / o.bit_width + 1e-9).astype(np.int64) + o.shift) % o.period_bits
+        j = (np.floor(np.asarray(t) / o.bit_width + 1e-9).astype(np.int64) + o.shift % o.period_bits) % o.period_bits
         sign = np.where(j >= p, -1.0, 1.0) if o.inverse_repeat else 1.0
         return o.amplitude * sign * levels[j % p]
 
