@@ -2,6 +2,7 @@
 peaks), bounded chain sizes, and numeric failures inside a fit as one-line errors."""
 from __future__ import annotations
 
+import os
 import tracemalloc
 
 import numpy as np
@@ -101,3 +102,25 @@ def test_estimation_errors_remember_what_they_converted(tmp_path, monkeypatch):
     with pytest.raises(EstimationError) as info:
         execute(config(), [], tmp_path / "out", plots=False)
     assert isinstance(info.value.converted_from, np.linalg.LinAlgError)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX resource limits")
+def test_two_million_samples_under_an_address_space_limit_is_refused_at_once(tmp_path):
+    """With 3 GiB of address space (ulimit -v), 2e6 samples stop before any allocation with the
+    estimate, instead of a numpy allocation traceback a minute later."""
+    import resource
+    import subprocess
+
+    from reliability_support import MBUS_RUN, python_env
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))
+
+    path = write_yaml(tmp_path / "big.yaml", config(excitation={"name": "prbs", "options": {
+        "order": 9, "bit_width": 2.5e-6, "sample_rate": 6.25e6, "n_samples": 2_000_000}}))
+    p = subprocess.run([*MBUS_RUN, str(path), "-o", str(tmp_path / "out")], preexec_fn=limit, capture_output=True,
+                       text=True, env=python_env(), timeout=120)
+    assert p.returncode == 2, p.stderr[-2000:]
+    (line,) = p.stderr.splitlines()
+    assert "2,000,000 samples with a 6-state model needs about 3.49 GiB to fit, more than the" in line
+    assert not (tmp_path / "out").exists()

@@ -198,8 +198,11 @@ def check_arrays(t, u, y, what: str, error: type[MbusError] = DataError) -> None
         raise error(f"{what}: the time step is not uniform (median {dt:.6g} s)")
 
 
-def checked_waveform(c: "Components") -> "Waveform":
-    """The designed excitation, checked (a broken third-party excitation is a PluginError)."""
+def checked_waveform(c: "Components") -> "Waveform | None":
+    """The designed excitation, checked (a broken third-party excitation is a PluginError);
+    None when the run has no designed excitation (the input comes from the record)."""
+    if getattr(c, "excitation", None) is None:
+        return None
     with plugin_failures(c.registry, c.source):
         w = c.excitation.waveform()
     check_arrays(w.t, w.u, w.u, f"{c.source}: excitation '{c.config.excitation.name}'", ConfigError)
