@@ -23,6 +23,7 @@ import json
 import os
 import random
 import shutil
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -344,13 +345,14 @@ def config_case(c, folder: Path, materials: "Materials") -> Case:
             out = folder / "notes.txt" if what == "file" else folder / "notes.txt" / "run"
         else:
             out.mkdir()
-            (out / ("status.json" if what == "run" else "thesis.tex")).write_text('{"status": "done"}')
-            protected[f"out/{'status.json' if what == 'run' else 'thesis.tex'}"] = b'{"status": "done"}'
+            name = "status.json" if what == "run" else "thesis.tex"
+            (out / name).write_text('{"status": "done"}')
+            if what == "other" or "--overwrite" not in argv_extra:  # --overwrite may replace a run, only a run
+                protected[f"out/{name}"] = b'{"status": "done"}'
         description.append(f"-o {what}")
     argv: list[Any] = [config_path, "-o", out, "--no-plots", "-q", *argv_extra, *overrides]
     names = [str(config_path), str(folder), "--set", *_flat_names(data)]
-    if base == "calibration":
-        allowed += _calibration_outputs(_effective(data, overrides[1:]), folder)
+    allowed += _calibration_outputs(_effective(data, overrides[1:]), folder)  # any config may become one
     return Case(folder, argv, names, description, allowed=allowed, protected=protected,
                 config_text=raw.decode("utf-8", "replace"))
 
@@ -512,7 +514,8 @@ def mutate_npz(c, path: Path) -> str:
     elif op == "dtype":
         dtype = c.choice([np.int8, np.int64, bool, np.complex128, np.float16, "U3", "S2"])
         try:
-            with np.errstate(all="ignore"):
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # ComplexWarning: the mutation means it
                 arrays[name] = a.astype(dtype)
         except (ValueError, TypeError):  # a string array that is not a number
             arrays[name] = np.full(a.shape, 7, dtype=dtype)

@@ -105,7 +105,9 @@ def _campaign(kind: str, count: int, start: int, seed: int, materials, root: Pat
         finally:
             faulthandler.cancel_dump_traceback_later()
         stats["cases"][kind] += 1
-        stats["slowest_s"] = max(stats["slowest_s"], time.perf_counter() - t0)
+        stats["by_input"][case.description[0]] += 1  # "base small", "format gds_raw", ...
+        if time.perf_counter() - t0 > stats["slowest_s"]:
+            stats["slowest_s"], stats["slowest_case"] = time.perf_counter() - t0, [kind, i, *case.description]
         _tidy(folder)
 
 
@@ -131,15 +133,17 @@ def test_fuzz_campaign(tmp_path_factory):
     report = Path(os.environ.get("MBUS_FUZZ_REPORT", Path(tempfile.gettempdir()) / "mbus-fuzz-report.json"))
     materials = fc.Materials(tmp_path_factory.mktemp("materials"))
     root = tmp_path_factory.mktemp("campaign")
-    stats = {"cases": collections.Counter(), "exit_codes": collections.Counter(), "errors": collections.Counter(),
+    stats = {"cases": collections.Counter(), "by_input": collections.Counter(), "exit_codes": collections.Counter(),
+             "errors": collections.Counter(),
              "tracebacks": [], "hangs": [], "violations": [], "numeric_failures_in_fits": [],
-             "json_files_checked": 0, "slowest_s": 0.0}
+             "json_files_checked": 0, "slowest_s": 0.0, "slowest_case": None}
     t0 = time.perf_counter()
     _campaign("config", n_configs, start, seed, materials, root, stats)
     _campaign("data", n_data, start, seed, materials, root, stats)
     stats["wall_time_s"] = round(time.perf_counter() - t0, 1)
     stats.update(seed=seed, start=start, case_timeout_s=CASE_TIMEOUT,
                  errors=dict(stats["errors"].most_common(40)), cases=dict(stats["cases"]),
+                 by_input=dict(stats["by_input"]),
                  exit_codes=dict(stats["exit_codes"]))
     report.write_text(json.dumps(stats, indent=1, default=str))
     print(f"\nfuzz campaign: {stats['cases']} cases in {stats['wall_time_s']} s (seed {seed}, from {start}); "

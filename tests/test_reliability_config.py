@@ -42,6 +42,7 @@ CASES = {
     "nuisance.max_delay=1.0e10": ("nuisance.max_delay", "not shorter than the record"),
     "nuisance.input_gain={value: 0, estimate: true}": ("nuisance.input_gain.value", "> 0"),
     "excitation.options.amplitude='inf'": ("excitation.options.amplitude", "no ultrasonic rig"),
+    "solver.options.xtol=1e-300": ("solver.options.xtol", "machine epsilon"),
 }
 FOUND_WITH_THE_RECORD = {  # need the record the backend delivers (or the truth it simulates)
     "backend.options.delay=10.0", "backend.options.truth.k_sigma=-3.0e8", "nuisance.max_delay=1.0e10"}

@@ -102,6 +102,10 @@ def check_run(c: "Components") -> None:
         value = getattr(strategy, key, None)
         if isinstance(value, int) and value > ceiling:
             raise ResourceError(f"{source}: solver.options.strategy.{key}: {value} is more than {ceiling} ({reason})")
+    for key, value in dict(c.solver.options).items():
+        if key.endswith("tol") and isinstance(value, float) and value < np.finfo(float).eps:
+            raise ConfigError(f"{source}: solver.options.{key}: {value:g} is below the machine epsilon "
+                              f"{np.finfo(float).eps:.3g}; no solver can meet a tolerance finer than round-off")
     seed = getattr(strategy, "seed", None)
     if isinstance(seed, int) and seed < 0:
         raise ConfigError(f"{source}: solver.options.strategy.seed: {seed} must be >= 0 (numpy seeds are non-negative)")

@@ -78,10 +78,11 @@ class ScopeOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     bits: int = Field(8, ge=2, le=16, description="ADC resolution (the GDS-2062 has 8 bits)")
     output_range: float | None = Field(
-        None, gt=0, description="full scale of the response channel, +-range (default 1.25 x noise-free peak)"
+        None, gt=0, le=1e6, description="full scale of the response channel, +-range (default 1.25 x noise-free peak); "
+        "at most 1e6 (no oscilloscope channel spans a megavolt)"
     )
     input_range: float | None = Field(
-        None, gt=0, description="full scale of the excitation channel (default 1.25 x its peak)"
+        None, gt=0, le=1e6, description="full scale of the excitation channel (default 1.25 x its peak); at most 1e6"
     )
     averages: int = Field(1, ge=1, le=4096, description="shots averaged, each with independent noise")
     trigger_delay: float = Field(0.0, ge=0, description="time from the first recorded sample to the excitation [s]")
