@@ -3,7 +3,6 @@ with that plugin; a third-party plugin that raises is one line naming it; a bug 
 reported in one line with its traceback saved (or raised with MBUS_DEBUG=1)."""
 from __future__ import annotations
 
-import types
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -12,19 +11,12 @@ import pytest
 
 from mbus_framework.interfaces import plugin_manager as pm_module
 from mbus_framework.interfaces import registry as registry_module
-from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from mbus_framework.interfaces.hookspecs import MediumModelSpec
 from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from plugins.models.kelvin_voigt import KelvinVoigtChain
 from reliability_support import assert_clean_outcome, config, run_cli, strict_json, write_yaml
-
-
-def plugin(name: str, **hooks) -> types.ModuleType:
-    mod = types.ModuleType(name)
-    for hook_name, func in hooks.items():
-        func.__name__ = hook_name
-        setattr(mod, hook_name, hookimpl(func))
-    return mod
+from test_plugins import plugin_module as plugin
 
 
 def use_registry(monkeypatch, *extra, entry_points=()) -> Registry:
