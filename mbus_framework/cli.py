@@ -5,9 +5,11 @@
     mbus-run --list-plugins
 
 A plain fit goes through the Python API (:func:`mbus_framework.run_config`), so the command line and
-Python produce the same run folder. User errors (bad config, bad data, instrument failure)
-print one line and exit non-zero (2 for input errors, 3 for instruments); a Python traceback
-means a bug.
+Python produce the same run folder. User errors (bad config, bad data, instrument failure) print
+one line and exit non-zero (2 for input errors, 3 for instruments); Ctrl-C exits 130 and SIGTERM
+143, with the run folder marked ``interrupted``. An unexpected exception (a bug) prints one line
+too, naming the file that holds its traceback, and exits 70; ``MBUS_DEBUG=1`` lets it through as
+a traceback.
 """
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ import sys
 # under load on a 2-core machine). Set before numpy is imported; the user's setting wins.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
-from typing import Sequence
+from contextlib import contextmanager
+from typing import Iterator, Sequence
 
 from mbus_framework.errors import MbusError
 
@@ -65,6 +68,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--workers", type=int, metavar="N", help="campaigns and studies: Dask LocalCluster worker processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="campaigns and studies: run on the Dask cluster at this address (tcp://host:8786)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the run in OUTDIR (and an existing calibration.output file)")
     p.add_argument("--no-plots", action="store_true", help="do not draw figures (PNGs; report.html without plots)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
@@ -86,6 +91,9 @@ def list_plugins() -> str:
         lines.append("broken plugins (skipped):")
         for b in reg.broken:
             lines.append(f"  {b.name:<22} {b.error}  [{b.source}]")
+    if reg.clashes:
+        lines.append("name clashes (these names are unusable until one provider is removed):")
+        lines += [f"  {message}" for message in reg.clashes.values()]
     return "\n".join(lines)
 
 
@@ -117,12 +125,37 @@ def _special_mode(args, progress) -> str | None:
     if load_config(args.config, args.overrides).calibration is not None:
         from mbus_framework.studies.transducer_calibration import run_calibration
 
-        return run_calibration(args.config, args.overrides, args.out, progress)
+        return run_calibration(args.config, args.overrides, args.out, progress, overwrite=args.overwrite)
     return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from mbus_framework.pipeline.interrupts import handling
+
     args = _parser().parse_args(argv)
+    with handling(), _one_line_warnings():
+        return _main(args)
+
+
+@contextmanager
+def _one_line_warnings() -> Iterator[None]:
+    """Python warnings (numpy's overflow notes, ...) as one stderr line each, no source line."""
+    import warnings
+
+    from mbus_framework.errors import one_line
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001
+        print(f"mbus-run: warning: {one_line(str(message), 300)} ({category.__name__}, "
+              f"{os.path.basename(filename)}:{lineno})", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
+def _main(args: argparse.Namespace) -> int:
+    from mbus_framework.pipeline import interrupts
+
     try:
         if args.list_plugins:
             print(list_plugins())
@@ -146,15 +179,49 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(special)
             return 0
         result = run_config(args.config, args.overrides, args.out, progress=progress if progress is not None else False,
-                     plots=False if args.no_plots else None)
+                            plots=False if args.no_plots else None, overwrite=args.overwrite)
         print(result.run_dir if args.quiet else result.summary())
         return 0
     except MbusError as exc:
-        print(f"mbus-run: error: {exc}", file=sys.stderr)
+        print(f"mbus-run: error: {exc.one_line()}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print("mbus-run: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"mbus-run: {str(exc) or 'interrupted'}", file=sys.stderr)
+        return interrupts.exit_status()
+    except OSError as exc:
+        if exc.filename is None:  # not about a file the user named: a bug, reported below
+            return _internal_error(exc)
+        from mbus_framework.errors import one_line
+
+        print(f"mbus-run: error: {one_line(str(exc.filename), 300)}: {exc.strerror or type(exc).__name__}",
+              file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - last resort: a bug, reported in one line
+        return _internal_error(exc)
+
+
+def _internal_error(exc: Exception) -> int:
+    if os.environ.get("MBUS_DEBUG"):
+        raise exc
+    print(f"mbus-run: internal error: {_bug_report(exc)}", file=sys.stderr)
+    return 70
+
+
+def _bug_report(exc: Exception) -> str:
+    """One line for an unexpected exception; its traceback goes to a file named in the line."""
+    import tempfile
+    import traceback
+
+    from mbus_framework.errors import one_line
+
+    text = "".join(traceback.format_exception(exc))
+    try:
+        with tempfile.NamedTemporaryFile("w", prefix="mbus-traceback-", suffix=".txt", delete=False) as fh:
+            fh.write(text)
+        where = f"traceback in {fh.name}"
+    except OSError:
+        where = "run with MBUS_DEBUG=1 for the traceback"
+    return one_line(f"{type(exc).__name__}: {exc}", 300) + f" (a bug in mbus; {where}; please report it)"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -212,6 +212,7 @@ def test_measurement_is_written_even_when_the_solver_crashes(tmp_path, monkeypat
         raise ZeroDivisionError("bug")
 
     monkeypatch.setattr(ScipyLM, "solve", crashing_solve)
+    monkeypatch.setenv("MBUS_DEBUG", "1")  # without it mbus-run reports the bug in one line (exit 70)
     with pytest.raises(ZeroDivisionError):
         main([str(small_config(tmp_path)), "-o", str(tmp_path / "out")])
     assert (tmp_path / "out" / "measurement.csv").is_file()

@@ -72,6 +72,7 @@ def run_config(
     progress: "bool | Progress | None" = None,
     source: str | None = None,
     registry: "Registry | None" = None,
+    overwrite: bool = False,
 ) -> Result:
     """Run one identification from a YAML config file or a config mapping, as ``mbus-run``
     does: acquire (the record is saved first), fit, and write a run folder (``out_dir``, default
@@ -79,12 +80,13 @@ def run_config(
 
     ``overrides`` are dotted keys, ``{"solver.options.strategy.n_starts": 4}`` or
     ``["solver.options.strategy.n_starts=4"]``; ``plots`` None follows ``output.plots``;
-    ``progress`` None shows a bar on an interactive terminal only.
+    ``progress`` None shows a bar on an interactive terminal only; an ``out_dir`` that already
+    holds a run is replaced only with ``overwrite``.
     """
     from mbus_framework.pipeline.run import execute
 
     outcome = execute(config, _override_list(overrides), out_dir, progress=_progress(progress), registry=registry,
-                      plots=plots, source=source)
+                      plots=plots, source=source, overwrite=overwrite)
     return Result.from_outcome(outcome)
 
 

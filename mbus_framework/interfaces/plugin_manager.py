@@ -2,8 +2,8 @@
 
 Built-ins in ``plugins/`` are declared in our own ``pyproject.toml`` under the entry-point
 group ``mbus_framework``, exactly as a third-party package declares its plugins. A plugin
-that fails to import or to register is reported (``manager.broken``) and skipped; it never
-takes the run down.
+that fails to import or to register (whatever it raises, ``sys.exit()`` included) is reported
+(``manager.broken``) and skipped; it never takes the run down.
 """
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from typing import Iterable
 
 import pluggy
 
+from mbus_framework.errors import one_line
 from mbus_framework.interfaces.hookspecs import PROJECT, MbusHookSpecs
 
 
@@ -39,7 +40,7 @@ class MbusPluginManager(pluggy.PluginManager):
         """Register ``plugin`` under ``name``; record failures instead of raising."""
         try:
             self.register(plugin, name=name)
-        except Exception as exc:  # noqa: BLE001 - a third-party plugin may raise anything
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 - a third-party plugin may raise anything
             # pluggy may have registered the name and the hooks checked before the bad one.
             if self.has_plugin(name):
                 self.unregister(name=name)
@@ -56,15 +57,16 @@ class MbusPluginManager(pluggy.PluginManager):
                 continue
             try:
                 plugin = ep.load()
-            except Exception as exc:  # noqa: BLE001
+            except (Exception, SystemExit) as exc:  # noqa: BLE001 - even sys.exit() in its import
                 self.broken.append(BrokenPlugin(ep.name, source, one_line_error(exc)))
                 continue
             self.register_plugin(plugin, ep.name, source)
 
 
 def one_line_error(exc: BaseException) -> str:
-    """``Type: message`` folded onto one line (pluggy's validation errors span several)."""
-    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    """``Type: message`` folded onto one line (pluggy's validation errors span several), at most
+    300 characters."""
+    return one_line(f"{type(exc).__name__}: {exc}", 300)
 
 
 def _entry_points(group: str) -> Iterable[metadata.EntryPoint]:

@@ -1,9 +1,16 @@
-"""Registry: the implementations the plugin manager collected, looked up by kind and name."""
+"""Registry: the implementations the plugin manager collected, looked up by kind and name.
+
+Failures stay with the plugin that caused them: a plugin whose hook raises (or calls
+``sys.exit``) or returns bad records is listed in ``broken`` and skipped; a name registered by
+two plugins is listed in ``clashes`` and only *that name* is unusable (asking for it explains
+the clash), so every other plugin and ``--list-plugins`` keep working. Asking for an unknown
+name also names the plugins that failed to load, since one of them may be the provider.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mbus_framework.errors import PluginError
+from mbus_framework.errors import PluginError, shown
 from mbus_framework.interfaces.hookspecs import HOOKS_BY_KIND, SPEC_BY_KIND, PluginSpec
 from mbus_framework.interfaces.plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager, one_line_error
 from mbus_framework.suggest import choices_text, did_you_mean
@@ -28,6 +35,7 @@ class Entry:
 class Registry:
     entries: dict[str, dict[str, Entry]] = field(default_factory=dict)
     broken: list[BrokenPlugin] = field(default_factory=list)
+    clashes: dict[tuple[str, str], str] = field(default_factory=dict)
 
     @classmethod
     def from_manager(cls, pm: MbusPluginManager) -> "Registry":
@@ -42,21 +50,27 @@ class Registry:
                 plugin_name = pm.get_name(impl.plugin) or "?"
                 source = pm.sources.get(plugin_name, "registered in code")
                 try:
-                    specs = impl.function() or []
+                    specs = list(impl.function() or [])
                     for spec in specs:
                         _check_spec(spec, kind, base)
-                except Exception as exc:  # noqa: BLE001 - report and skip the broken plugin
+                except (Exception, SystemExit) as exc:  # noqa: BLE001 - report and skip the broken plugin
                     reg.broken.append(BrokenPlugin(plugin_name, source, f"{hook_name}: {one_line_error(exc)}"))
                     continue
                 for spec in specs:
-                    clash = reg.entries[kind].get(spec.name)
-                    if clash is not None:
-                        raise PluginError(
-                            f"{kind} '{spec.name}' is registered twice: by {clash.plugin} ({clash.source}) "
-                            f"and by {plugin_name} ({source}); uninstall or block one of them"
-                        )
-                    reg.entries[kind][spec.name] = Entry(spec, plugin_name, source)
+                    reg._add(kind, Entry(spec, plugin_name, source))
         return reg
+
+    def _add(self, kind: str, entry: Entry) -> None:
+        name = entry.spec.name
+        if (kind, name) in self.clashes:
+            self.clashes[kind, name] += f" and by {entry.plugin} ({entry.source})"
+            return
+        first = self.entries[kind].pop(name, None)
+        if first is None:
+            self.entries[kind][name] = entry
+            return
+        self.clashes[kind, name] = (f"{kind} {shown(name)} is registered twice: by {first.plugin} ({first.source}) "
+                                    f"and by {entry.plugin} ({entry.source})")
 
     def names(self, kind: str) -> list[str]:
         return sorted(self.entries[kind])
@@ -64,11 +78,22 @@ class Registry:
     def get(self, kind: str, name: str) -> PluginSpec:
         try:
             return self.entries[kind][name].spec
-        except KeyError:
-            choices = self.names(kind)
-            raise PluginError(
-                f"unknown {kind} '{name}'{did_you_mean(name, choices)}; choose one of: {choices_text(choices)}"
-            ) from None
+        except (KeyError, TypeError):
+            pass
+        if (kind, name) in self.clashes:
+            raise PluginError(f"{self.clashes[kind, name]}; uninstall or block one of them")
+        choices = self.names(kind)
+        hint = did_you_mean(name, choices) if isinstance(name, str) and len(name) <= 60 else ""
+        raise PluginError(f"unknown {kind} {shown(name)}{hint}; choose one of: {choices_text(choices)}"
+                          f"{self._broken_hint()}")
+
+    def _broken_hint(self) -> str:
+        """Plugins that failed to load may be the missing provider: name them (first three)."""
+        if not self.broken:
+            return ""
+        listed = "; ".join(f"{b.name} ({shown(b.error, 120)}) [{b.source}]" for b in self.broken[:3])
+        more = f" and {len(self.broken) - 3} more" if len(self.broken) > 3 else ""
+        return f". Plugins that failed to load (--list-plugins): {listed}{more}"
 
 
 def _check_spec(spec: object, kind: str, base: type) -> None:

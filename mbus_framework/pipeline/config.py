@@ -1,56 +1,59 @@
-"""Run configuration: safe YAML loading, ``--set`` overrides, two-stage validation.
+"""Run configuration: safe, bounded YAML loading, ``--set`` overrides, two-stage validation.
 
 Stage 1 checks the core structure (:class:`RunConfig`); stage 2 validates each plugin's
 own ``options`` against that plugin's ``Options`` model (:func:`validate_options`). Errors
 are :class:`~mbus_framework.errors.ConfigError` with one line naming the file and the key
 path, with a 'did you mean' for misspelt keys.
+
+Every number anywhere in a config must be finite (``.nan``, ``.inf`` and ``1e400`` are refused
+with their key path), and the sample's dimensions must be physically possible; the YAML
+itself is bounded in size, depth and alias expansion (:mod:`mbus_framework.pipeline.yaml_loader`).
 """
 from __future__ import annotations
 
-import re
+import math
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, ValidationError, field_validator
 
-from mbus_framework.errors import ConfigError
+from mbus_framework.errors import ConfigError, shown
+from mbus_framework.pipeline.yaml_loader import (  # noqa: F401 - yaml_load, ConfigLoader: public names
+    ConfigLoader,
+    LimitError,
+    describe_yaml_error,
+    read_config_text,
+    yaml_load,
+)
 from mbus_framework.suggest import did_you_mean
 
 
-class ConfigLoader(yaml.SafeLoader):
-    """Safe loader that also reads 1e-6 and 6.0e8 as floats (YAML 1.1 wants 1.0e-6, 6.0e+8)."""
-
-
-ConfigLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(
-        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-        |[-+]?\.(?:inf|Inf|INF)
-        |\.(?:nan|NaN|NAN))$""",
-        re.X,
-    ),
-    list("-+0123456789."),
-)
-
-
-def yaml_load(text: str):
-    """Parse YAML text with :class:`ConfigLoader` (safe: no Python object tags)."""
-    return yaml.load(text, Loader=ConfigLoader)  # noqa: S506 - ConfigLoader is a SafeLoader
-
-
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+SAMPLE_RANGES = {
+    "length": (1e-6, 10.0, "m", "no sample between two transducer faces is thinner than 1 um or longer than 10 m"),
+    "diameter": (1e-5, 10.0, "m", "transducer elements span 10 um to metres"),
+    "density": (1e-2, 1e5, "kg/m^3", "from a gas at low pressure to beyond osmium's 22,590 kg/m^3"),
+}
 
 
 class SampleConfig(_Strict):
-    """``sample``: the pressure-wave column."""
+    """``sample``: the pressure-wave column (ranges: :data:`SAMPLE_RANGES`)."""
 
     length: PositiveFloat = Field(description="sample thickness L [m]")
     diameter: PositiveFloat = Field(description="transducer element diameter D [m]")
     density: PositiveFloat = Field(description="density rho [kg/m^3]")
+
+    @field_validator("length", "diameter", "density")
+    @classmethod
+    def _physical(cls, value: float, info):
+        lo, hi, unit, reason = SAMPLE_RANGES[info.field_name]
+        if not lo <= value <= hi:
+            raise ValueError(f"{value:g} {unit} is outside [{lo:g}, {hi:g}] {unit} ({reason})")
+        return value
 
 
 class PluginRef(_Strict):
@@ -148,21 +151,12 @@ class RunConfig(_Strict):
 
 
 def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Safe-load a YAML mapping from ``path``."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read config ({type(exc).__name__})") from None
+    """Safe-load a YAML mapping from ``path`` (bounded: see :mod:`~mbus_framework.pipeline.yaml_loader`)."""
+    text = read_config_text(path)
     try:
         data = yaml_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{path}: invalid YAML{where}: {problem}") from None
+        raise ConfigError(f"{path}: {describe_yaml_error(exc)}") from None
     if data is None:
         raise ConfigError(f"{path}: config file is empty")
     if not isinstance(data, dict):
@@ -179,9 +173,11 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or not key or any(not part for part in key.split(".")):
-            raise ConfigError(f"{where} '{item}': expected dotted.key=value")
+            raise ConfigError(f"{where} {shown(item)}: expected dotted.key=value")
         try:
             value = yaml_load(text) if text.strip() else ""
+        except LimitError as exc:
+            raise ConfigError(f"{where} {shown(key)}: {describe_yaml_error(exc)}") from None
         except yaml.YAMLError:
             value = text
         node = out
@@ -191,7 +187,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--
             if child is None:
                 child = node[part] = {}
             if not isinstance(child, dict):
-                raise ConfigError(f"{where} '{item}': '{'.'.join(parts[: i + 1])}' is not a section")
+                raise ConfigError(f"{where} {shown(item)}: {shown('.'.join(parts[: i + 1]))} is not a section")
             node = child
         node[parts[-1]] = value
     return out
@@ -204,10 +200,24 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> RunConf
 
 
 def validate_structure(data: dict[str, Any], source: str = "<config>") -> RunConfig:
+    reject_non_finite(data, source)
     try:
         return RunConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{source}: {format_validation_error(exc, RunConfig)}") from None
+
+
+def reject_non_finite(data: Any, source: str | None = None, where: str = "") -> None:
+    """ConfigError naming the key path of the first NaN or infinite number in ``data``."""
+    if isinstance(data, float) and not math.isfinite(data):
+        prefix = f"{source}: " if source else ""
+        raise ConfigError(f"{prefix}{where or '(value)'}: must be a finite number (got {data})")
+    if isinstance(data, dict):
+        for key, value in data.items():
+            reject_non_finite(value, source, f"{where}.{_key(key)}" if where else _key(key))
+    elif isinstance(data, (list, tuple)):
+        for i, value in enumerate(data):
+            reject_non_finite(value, source, f"{where}[{i}]")
 
 
 def validate_options(options_model: type[BaseModel], options: Any, where: str, source: str | None = None):
@@ -217,11 +227,18 @@ def validate_options(options_model: type[BaseModel], options: Any, where: str, s
     if not isinstance(options, dict):
         prefix = f"{source}: " if source else ""
         raise ConfigError(f"{prefix}{where}: must be a mapping, not {type(options).__name__}")
+    reject_non_finite(options, source, where)
     try:
-        return options_model.model_validate(options)
+        validated = options_model.model_validate(options)
     except ValidationError as exc:
         prefix = f"{source}: " if source else ""
         raise ConfigError(f"{prefix}{format_validation_error(exc, options_model, where)}") from None
+    reject_non_finite(validated.model_dump(), source, where)  # 'nan' and 'inf' given as strings
+    return validated
+
+
+def _key(key: Any) -> str:
+    return key if isinstance(key, str) and len(key) <= 60 and key.isprintable() else shown(key)
 
 
 def format_validation_error(exc: ValidationError, root: type[BaseModel], prefix: str = "") -> str:
@@ -229,21 +246,22 @@ def format_validation_error(exc: ValidationError, root: type[BaseModel], prefix:
     # A misspelt key shows up twice (unknown key + missing key); the unknown key explains both.
     errors = sorted(exc.errors(), key=lambda e: e["type"] != "extra_forbidden")
     err = errors[0]
-    loc = [str(p) for p in err["loc"]]
+    loc = [_key(p) if isinstance(p, str) else str(p) for p in err["loc"]]
     path = ".".join([prefix] * bool(prefix) + loc)
     more = f" (and {len(errors) - 1} more problem{'s' * (len(errors) > 2)})" if len(errors) > 1 else ""
     kind = err["type"]
     if kind == "extra_forbidden":
         choices = _field_names(root, err["loc"][:-1])
-        return f"{path}: unknown key{did_you_mean(loc[-1], choices)}; allowed: {', '.join(choices)}{more}"
+        hint = did_you_mean(loc[-1], choices) if len(loc[-1]) <= 60 else ""
+        return f"{path}: unknown key{hint}; allowed: {', '.join(choices)}{more}"
     if kind == "missing":
         return f"{path}: required key is missing{more}"
     got = err.get("input")
-    shown = "" if isinstance(got, (dict, list)) else f" (got {got!r})"
+    value = "" if isinstance(got, (dict, list)) else f" (got {shown(got)})"
     msg = err["msg"]
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, ") :]
-    return f"{path}: {msg}{shown}{more}"
+    return f"{path}: {msg}{value}{more}"
 
 
 def _field_names(root: type[BaseModel], loc: tuple) -> list[str]:

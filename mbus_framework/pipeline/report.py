@@ -15,6 +15,8 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     title = result.get("title") or result.get("config")
     lines.append(f"mbus identification: {title}")
     lines.append(f"model {result['model']['name']} {result['model']['options']}")
+    first = [w for w in result.get("warnings", []) if w.startswith("measurement: ")]  # partial acquisitions
+    lines += [f"  WARNING: {w}" for w in first]
     unc = result.get("uncertainty", {})
     truth = result.get("truth", {})
     err = result.get("error_percent", {})
@@ -68,7 +70,8 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
             + ", ".join(f"{n} {100 * v / abs(truth[n]):.3g}%" for n, v in crb.items() if truth.get(n))
         )
     for w in result.get("warnings", []):
-        lines.append(f"  WARNING: {w}")
+        if w not in first:
+            lines.append(f"  WARNING: {w}")
     if run_dir is not None:
         lines.append(f"  output: {run_dir}")
     return "\n".join(lines)

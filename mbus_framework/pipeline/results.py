@@ -130,7 +130,7 @@ def build_result(
         result["compensation"] = compensation
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
-    result["warnings"] = identifiability_warnings(result, c.config.identifiability, fit)
+    result["warnings"] = measurement_warnings(m) + identifiability_warnings(result, c.config.identifiability, fit)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
         result["warnings"].insert(
             0,
@@ -138,6 +138,16 @@ def build_result(
             f"the data (model mismatch, transducer dynamics or a local minimum); the estimates are biased",
         )
     return result
+
+
+MEASUREMENT_WARNING = "measurement: "
+
+
+def measurement_warnings(m: "Measurement") -> list[str]:
+    """What the backend flagged about the record (a partial lab acquisition, clipping, ...),
+    each prefixed ``measurement: ``."""
+    found = m.meta.get("warnings")
+    return [MEASUREMENT_WARNING + str(w) for w in found] if isinstance(found, list) else []
 
 
 def _derived(model, theta: np.ndarray) -> dict[str, float]:

@@ -8,8 +8,6 @@ are the steps without files (the Python API fits arrays with them).
 """
 from __future__ import annotations
 
-import datetime as _dt
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -19,14 +17,16 @@ import yaml
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Measurement
 from mbus_framework.pipeline.config import RunConfig, apply_overrides, load_config, validate_structure
-from mbus_framework.errors import ConfigError, EstimationError
+from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.estimation.nuisance import NuisanceSettings
-from mbus_framework.interfaces.registry import Registry
+from mbus_framework.interfaces.registry import Registry, default_registry
+from mbus_framework.pipeline import interrupts, limits
 from mbus_framework.pipeline.components import Components, build_components
 from mbus_framework.pipeline.figures import FitData
 from mbus_framework.pipeline.recorded_input import consistency_warnings, excitation_section
 from mbus_framework.pipeline.results import build_result
+from mbus_framework.pipeline.run_folder import RunFolder, default_name
 from mbus_framework.pipeline.run_report import REPORT_FILE, write_report
 from mbus_framework.estimation.problem import FitProblem, FitResult, Progress
 from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
@@ -54,9 +54,8 @@ class RunOutcome:
 
 
 def new_run_dir(config: RunConfig, source: str) -> Path:
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(source).stem).strip("_.") or "run"
-    base = Path(config.output.directory) / f"{stamp}-{name}"
+    """A free default folder name (not reserved: runs reserve theirs with :class:`RunFolder`)."""
+    base = Path(config.output.directory) / default_name(source)
     path, k = base, 1
     while path.exists():
         k += 1
@@ -68,7 +67,7 @@ def acquire(c: Components, run_dir: Path, waveform: Waveform | None) -> Measurem
     """Acquire and write the raw record (and its metadata) before anything is fitted;
     ``waveform`` is the designed excitation, or None when the backend reads the input."""
     context = AcquisitionContext(waveform, c.sample, c.model, c.registry, run_dir, c.source)
-    m = c.backend.acquire(context)
+    m = limits.checked_measurement(c.backend.acquire(context), c)
     save_measurement(run_dir, m)
     return m
 
@@ -122,22 +121,25 @@ def load_components(
     registry: Registry | None = None,
 ) -> Components:
     """Read (a file) or take (a mapping) a run config, apply ``--set`` overrides, validate both
-    stages and the initial values, and build the plugin instances; nothing is acquired."""
+    stages, build the plugin instances and check initial values, parameter ranges and memory
+    (:func:`~mbus_framework.pipeline.limits.check_run`); nothing is acquired."""
     if isinstance(config, Mapping):
         source = source or "<config>"
         run_config = validate_structure(apply_overrides(dict(config), overrides or []), source)
     else:
         source = source or str(config)
         run_config = load_config(config, overrides)
-    c = build_components(run_config, source, registry)
-    if c.config.model.initial:  # fail on bad initial values before acquiring anything
-        c.model.theta_from_mapping(c.config.model.initial, f"{source}: model.initial")
+    registry = registry or default_registry()
+    with limits.plugin_failures(registry, source):  # a third-party plugin's bug is one named line
+        c = build_components(run_config, source, registry)
+        limits.check_run(c)  # before anything is allocated or acquired
     return c
 
 
 def designed_waveform(c: Components) -> Waveform | None:
-    """The configured excitation's samples, or None when the input comes from the record."""
-    return c.excitation.waveform() if c.excitation is not None else None
+    """The configured excitation's samples (checked), or None when the input comes from the record."""
+    with limits.plugin_failures(c.registry, c.source):
+        return limits.checked_waveform(c)
 
 
 def input_warnings(m: Measurement, designed: Waveform | None) -> list[str]:
@@ -151,14 +153,18 @@ def input_warnings(m: Measurement, designed: Waveform | None) -> list[str]:
 
 def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
              progress: Progress | None = None) -> RunOutcome:
-    """Compensate, fit and build the result document; touches no file."""
-    compensated = c.compensator.apply(m)
-    problem = make_problem(c, compensated)
-    try:
-        fit = c.solver.solve(problem, progress)
-    except np.linalg.LinAlgError as exc:
-        raise EstimationError(f"{c.source}: estimation failed: {exc}") from None
-    result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
+    """Compensate, fit and build the result document; touches no file. Every stage is an
+    interruption checkpoint (:mod:`~mbus_framework.pipeline.interrupts`); numeric failures inside
+    the solver or the uncertainty analysis are one-line errors (:func:`~mbus_framework.pipeline.limits.estimation_boundary`)."""
+    with limits.plugin_failures(c.registry, c.source):
+        compensated = c.compensator.apply(m)
+        problem = make_problem(c, compensated)
+    interrupts.check()
+    with limits.estimation_boundary(c):
+        fit = c.solver.solve(problem, interrupts.CheckedProgress(progress))
+    interrupts.check()
+    with limits.estimation_boundary(c):  # the uncertainty analysis
+        result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
     result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed, m)
     result["warnings"] = input_warnings(m, designed) + list(result.get("warnings", []))
     return RunOutcome(None, c, m, fit, result, problem, designed)
@@ -202,20 +208,27 @@ def execute(
     plots: bool | None = None,
     source: str | None = None,
     measurement: Measurement | None = None,
+    overwrite: bool = False,
 ) -> RunOutcome:
     """Run one identification from a config file, or from a config mapping (``source`` names
     it in error messages and the default run-folder name), into a run folder; returns everything
-    it produced. With ``measurement`` the backend is not asked: that record is saved and fitted."""
+    it produced. With ``measurement`` the backend is not asked: that record is saved and fitted.
+
+    The run folder (``out_dir``, default a new ``<output.directory>/<date-time>-<config>``) is
+    reserved exclusively (:class:`~mbus_framework.pipeline.run_folder.RunFolder`); a folder that
+    already holds a run is replaced only with ``overwrite``."""
     c = load_components(config_path, overrides, source, registry)
     designed = designed_waveform(c)
-    run_dir = Path(out_dir) if out_dir else new_run_dir(c.config, c.source)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_config(run_dir, c.config)
-    if measurement is None:
-        measurement = acquire(c, run_dir, designed)
-    else:
-        save_measurement(run_dir, measurement)
-    outcome = estimate(c, measurement, designed, progress)
-    outcome.run_dir = run_dir
-    write_outputs(run_dir, outcome, plots if plots is not None else c.config.output.plots)
-    return outcome
+    folder = RunFolder.create(out_dir, parent=c.config.output.directory, source=c.source, overwrite=overwrite)
+    with folder, limits.plugin_failures(c.registry, c.source):
+        run_dir = folder.path
+        write_config(run_dir, c.config)
+        if measurement is None:
+            measurement = acquire(c, run_dir, designed)
+        else:
+            save_measurement(run_dir, limits.checked_measurement(measurement, c))
+        interrupts.check()
+        outcome = estimate(c, measurement, designed, progress)
+        outcome.run_dir = run_dir
+        write_outputs(run_dir, outcome, plots if plots is not None else c.config.output.plots)
+        return outcome

@@ -89,36 +89,54 @@ def _record_name(length: float) -> str:
     return f"length_{length * 1e3:06.3f}mm"
 
 
-def run_calibration(config_path, overrides=None, out_dir=None, progress=None) -> str:
+def run_calibration(config_path, overrides=None, out_dir=None, progress=None, overwrite=False) -> str:
     """Measure the reference medium at every length, estimate G_TR and gamma, save and plot.
 
-    Returns a readable summary. Files go to ``out_dir`` (default: a new run folder).
+    Returns a readable summary. Files go to ``out_dir`` (default: a new run folder, reserved
+    as every run's is); an existing ``calibration.output`` file is replaced only with ``overwrite``.
     """
+    from mbus_framework.pipeline import limits
+    from mbus_framework.pipeline.components import require_excitation
+    from mbus_framework.pipeline.config import load_config
+    from mbus_framework.pipeline.run import build_components
+    from mbus_framework.pipeline.run_folder import RunFolder
+
+    source = str(config_path)
+    config = load_config(config_path, overrides)
+    opts = parse_options(config.calibration, source)
+    if opts.output:
+        try:
+            targets = [Path(opts.output).with_suffix(s) for s in (".npz", ".json")]
+            present = [p for p in targets if p.exists() or p.is_symlink()]
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{source}: calibration.output: not a usable file name ({type(exc).__name__}: "
+                              f"{str(exc)[:80]})") from None
+        if present and not overwrite:
+            raise ConfigError(f"{source}: calibration.output: {present[0]} exists; pass --overwrite to replace it")
+    c = build_components(config, source)
+    if config.backend.name == "simulated" and getattr(c.backend.options, "wave", None) is None:
+        raise ConfigError(
+            f"{source}: calibration: the simulated rig needs backend.options.wave (a reference propagation path)"
+        )
+    require_excitation(c, "a calibration run")
+    waveform = limits.checked_waveform(c)
+    period = _period_samples(waveform.info, len(waveform.u), opts.analysis, source)
+    with RunFolder.create(out_dir, parent=config.output.directory, source=source, overwrite=overwrite) as folder:
+        return _calibrate(config, opts, c, waveform, period, folder.path, source, progress)
+
+
+def _calibrate(config, opts, c, waveform, period, run_dir: Path, source: str, progress) -> str:
+    """The measurements, the estimate and the files of :func:`run_calibration`."""
     import yaml
 
     from mbus_framework.interfaces.backend import AcquisitionContext
     from mbus_framework.interfaces.sample import Sample
-    from mbus_framework.pipeline.config import load_config
-    from mbus_framework.pipeline.components import require_excitation
-    from mbus_framework.pipeline.run import build_components, new_run_dir
     from mbus_framework.pipeline.storage import (
         atomic_write_json,
         atomic_write_text,
         write_waveforms,
     )
 
-    source = str(config_path)
-    config = load_config(config_path, overrides)
-    opts = parse_options(config.calibration, source)
-    c = build_components(config, source)
-    if config.backend.name == "simulated" and getattr(c.backend.options, "wave", None) is None:
-        raise ConfigError(
-            f"{source}: calibration: the simulated rig needs backend.options.wave (a reference propagation path)"
-        )
-    waveform = require_excitation(c, "a calibration run").waveform()
-    period = _period_samples(waveform.info, len(waveform.u), opts.analysis, source)
-    run_dir = Path(out_dir) if out_dir else new_run_dir(config, source)
-    run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
 
     lengths = sorted(opts.lengths)
@@ -146,6 +164,10 @@ def run_calibration(config_path, overrides=None, out_dir=None, progress=None) ->
     est = estimate_transfer(
         records, lengths, config.model.hold, period, opts.max_log_se, opts.floor_db, band
     )
+    if not np.any((est.f >= band[0]) & (est.f <= band[1])):
+        raise ConfigError(f"{source}: calibration.band: {band[0]:g}-{band[1]:g} Hz holds no frequency line of the "
+                          f"records ({est.f.size} lines up to {est.f.max(initial=0):g} Hz); widen the band or "
+                          f"lengthen the record")
     truth = getattr(c.backend, "true_transducer_response", None)
     check = compare_with_truth(est.f, est.G_TR, truth(est.f), band) if truth else None
     meta = {

@@ -12,7 +12,9 @@ with what the generator played, the shots are cut at the burst start, averaged a
 A timeout, a disconnect, a garbage reply or a rejected command stops the run with a one-line
 ``InstrumentError`` ("<instrument>: <step>: ..."); the shots saved so far stay on disk and
 ``acquisition.json`` records the error, so the ``file`` backend can re-fit from the folder
-(``backend: {name: file, options: {path: <run_dir>}}``). Without a run directory in the context
+(``backend: {name: file, options: {path: <run_dir>}}``); Ctrl-C and SIGTERM record
+``interrupted``, and a run killed outright is marked ``interrupted`` by the next run
+(:mod:`mbus_framework.pipeline.run_folder`). Without a run directory in the context
 (programmatic use) the shots go to a new temporary folder, named in the measurement's meta.
 """
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.errors import InstrumentError, MbusError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
+from mbus_framework.pipeline import interrupts
 from plugins.instruments.ds340 import DS340, DS340Options, scale_to_points
 from plugins.instruments.gds2000 import GDS2000, GDS2000Options
 from plugins.instruments.shots import (
@@ -105,6 +108,7 @@ class LabBackend(Backend):
             write_acquisition(shot_dir, record)
             ex, resp = o.scope.excitation_channel, o.scope.response_channel
             for index in range(1, o.shots + 1):
+                interrupts.check()  # a Ctrl-C swallowed inside a driver call stops here
                 scope.arm()
                 generator.trigger()
                 scope.wait_acquired()
@@ -123,9 +127,10 @@ class LabBackend(Backend):
                 write_acquisition(shot_dir, record)
             record["status"] = "complete"
         except BaseException as exc:
-            record["status"] = "failed" if isinstance(exc, MbusError) else "interrupted"
-            record["error"] = str(exc) or type(exc).__name__
-            write_acquisition(shot_dir, record)
+            with interrupts.deferred():  # a second Ctrl-C or SIGTERM waits until the record is written
+                record["status"] = "failed" if isinstance(exc, MbusError) else "interrupted"
+                record["error"] = str(exc) or type(exc).__name__
+                write_acquisition(shot_dir, record)
             raise
         finally:
             generator.close()

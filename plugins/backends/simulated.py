@@ -38,6 +38,7 @@ from scipy import fft as sfft
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
 from mbus_framework.pipeline.config import validate_options
+from mbus_framework.pipeline.limits import check_parameters
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.estimation.nuisance import delayed_prediction
@@ -79,7 +80,7 @@ class SimulatedOptions(BaseModel):
     truth: dict[str, float] = Field(description="true parameters, or true material properties, of the medium")
     medium: MediumRef | None = Field(None, description="true medium model if not the fitted one")
     noise: NoiseOptions = Field(default_factory=NoiseOptions)
-    seed: int = Field(0, description="seed of the noise generator")
+    seed: int = Field(0, ge=0, description="seed of the noise generator (numpy seeds are non-negative)")
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold used to simulate the truth")
     input_gain: float = Field(1.0, gt=0, description="true force per recorded input unit [N/unit]")
     delay: float = Field(0.0, ge=0, description="true trigger offset of the received wave [s]")
@@ -133,8 +134,17 @@ class SimulatedBackend(Backend):
         t, u = context.excitation.t, np.asarray(context.excitation.u, dtype=float)
         dt = float(t[1] - t[0])
         trigger = o.scope.trigger_delay if o.scope is not None else 0.0
+        duration = float(t[-1] - t[0])
+        if o.delay + trigger >= duration:
+            raise ConfigError(f"{context.config_path}: backend.options.delay / scope.trigger_delay: the response "
+                              f"arrives {o.delay + trigger:g} s after the record starts, after its end ({duration:g} s)")
         if o.wave is not None:
             medium, theta = None, None
+            travel = context.sample.length / o.wave.sound_speed
+            if o.delay + trigger + travel >= duration:
+                raise ConfigError(f"{context.config_path}: backend.options.wave: the wave through {context.sample.length:g} m "
+                                  f"arrives {o.delay + trigger + travel:g} s after the record starts, after its end "
+                                  f"({duration:g} s); lengthen the record")
             y_true = self._wave_response(u, dt, context.sample.length, trigger)
         else:
             medium = context.model
@@ -144,7 +154,9 @@ class SimulatedBackend(Backend):
                     spec.implementation.Options, o.medium.options, "backend.options.medium.options"
                 )
                 medium = spec.implementation(context.sample, opts)
-            theta = medium.theta_from_mapping(o.truth, "backend.options.truth")
+            where = f"{context.config_path}: backend.options.truth"
+            theta = medium.theta_from_mapping(o.truth, where)
+            check_parameters(medium, dict(zip(medium.parameter_names, theta)), where)
             path = self.pair.around(medium) if self.pair is not None else medium
             total_delay = o.delay + trigger
             if total_delay > 0:

@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import signal as sps
 
 from mbus_framework.interfaces.model import StateSpace
@@ -59,6 +59,18 @@ class TransducerPairOptions(BaseModel):
     order: int = Field(2, ge=1, le=6, description="Butterworth band-pass order N of each (2N poles)")
     mismatch: TransducerMismatch = Field(default_factory=TransducerMismatch)
 
+    @model_validator(mode="after")
+    def _physical(self):
+        if not 1e3 <= self.centre_frequency <= 1e9:
+            raise ValueError(f"centre_frequency {self.centre_frequency:g} Hz is outside 1 kHz - 1 GHz (ultrasonic "
+                             f"transducers)")
+        fraction = self.bandwidth / self.centre_frequency
+        if not 0.01 <= fraction < 2.0:
+            raise ValueError(f"bandwidth {self.bandwidth:g} Hz is {fraction:.3g} x centre_frequency; a band-pass "
+                             f"transducer's fractional bandwidth lies in [0.01, 2) (the lower -3 dB edge must stay "
+                             f"above 0 Hz)")
+        return self
+
 
 class ScopeOptions(BaseModel):
     """``backend.options.scope``: ADC, averaging and trigger of the virtual oscilloscope."""
@@ -66,10 +78,11 @@ class ScopeOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     bits: int = Field(8, ge=2, le=16, description="ADC resolution (the GDS-2062 has 8 bits)")
     output_range: float | None = Field(
-        None, gt=0, description="full scale of the response channel, +-range (default 1.25 x noise-free peak)"
+        None, gt=0, le=1e6, description="full scale of the response channel, +-range (default 1.25 x noise-free peak); "
+        "at most 1e6 (no oscilloscope channel spans a megavolt)"
     )
     input_range: float | None = Field(
-        None, gt=0, description="full scale of the excitation channel (default 1.25 x its peak)"
+        None, gt=0, le=1e6, description="full scale of the excitation channel (default 1.25 x its peak); at most 1e6"
     )
     averages: int = Field(1, ge=1, le=4096, description="shots averaged, each with independent noise")
     trigger_delay: float = Field(0.0, ge=0, description="time from the first recorded sample to the excitation [s]")

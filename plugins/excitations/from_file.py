@@ -26,16 +26,18 @@ from pydantic import Field, model_validator
 from mbus_framework.errors import DataError
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
+from mbus_framework.pipeline.storage import read_npz, read_regular_file
+from plugins.excitations.bounds import SAMPLE_RATE_RANGE, Amplitude, RecordSamples, SampleRate, samples
 
 
 class FromFileOptions(ExcitationOptions):
     path: str = Field(description="waveform file (.npy, .npz, .csv, .txt, .dat)")
     column: str | int | None = Field(None, description="column of the values (name or 0-based index)")
-    file_sample_rate: float | None = Field(None, gt=0, description="point rate of the file [Hz] (no time column)")
-    sample_rate: float | None = Field(None, gt=0, description="record sampling rate [Hz] (default: the point rate)")
-    amplitude: float | None = Field(None, gt=0, description="rescale so the peak |u| is this [N or V]")
+    file_sample_rate: SampleRate | None = Field(None, description="point rate of the file [Hz] (no time column)")
+    sample_rate: SampleRate | None = Field(None, description="record sampling rate [Hz] (default: the point rate)")
+    amplitude: Amplitude | None = Field(None, description="rescale so the peak |u| is this [N or V]")
     periods: int = Field(1, ge=1, le=1000, description="play the file this many times in a row")
-    n_samples: int | None = Field(None, ge=16, description="record length [samples]")
+    n_samples: RecordSamples | None = Field(None, description="record length [samples]")
     duration: float | None = Field(None, gt=0, description="record length [s] (alternative to n_samples)")
 
     @model_validator(mode="after")
@@ -47,17 +49,17 @@ class FromFileOptions(ExcitationOptions):
 
 def read_points(path: Path, column: str | int | None) -> tuple[np.ndarray, np.ndarray | None]:
     """(values, times or None) from a waveform file; DataError naming the file when unusable."""
-    if not path.is_file():
+    if not path.exists():
         raise DataError(f"{path}: waveform file not found")
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
-            u, t = np.load(path, allow_pickle=False), None
+            u, t = np.load(io.BytesIO(read_regular_file(path, "waveform file")), allow_pickle=False), None
         elif suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                if "u" not in z.files:
-                    raise DataError(f"{path}: no array 'u' (arrays: {', '.join(z.files)})")
-                u, t = z["u"], (z["t"] if "t" in z.files else None)
+            z = read_npz(path, "waveform file")
+            if "u" not in z:
+                raise DataError(f"{path}: no array 'u' (arrays: {', '.join(z)[:120]})")
+            u, t = z["u"], z.get("t")
         elif suffix in (".csv", ".txt", ".dat"):
             u, t = _read_text(path, column)
         else:
@@ -66,7 +68,11 @@ def read_points(path: Path, column: str | int | None) -> tuple[np.ndarray, np.nd
         raise
     except (ValueError, OSError) as exc:
         raise DataError(f"{path}: cannot read waveform ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
-    u = np.asarray(u, dtype=float)
+    try:
+        u = np.asarray(u, dtype=float)
+        t = None if t is None else np.asarray(t, dtype=float)
+    except (ValueError, TypeError) as exc:
+        raise DataError(f"{path}: waveform values are not real numbers ({type(exc).__name__})") from None
     if u.ndim != 1 or u.size < 2:
         raise DataError(f"{path}: expected a 1-D waveform of at least 2 points, got shape {u.shape}")
     if not np.all(np.isfinite(u)):
@@ -79,7 +85,11 @@ def read_points(path: Path, column: str | int | None) -> tuple[np.ndarray, np.nd
 
 
 def _read_text(path: Path, column: str | int | None):
-    text = path.read_text(encoding="utf-8")
+    data = read_regular_file(path, "waveform file")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise DataError(f"{path}: no data")
@@ -131,9 +141,13 @@ class FromFile(DesignedExcitation):
         if t is not None:
             steps = np.diff(t)
             dt = float(np.mean(steps))
-            if dt <= 0 or np.max(np.abs(steps - dt)) > 1e-6 * dt:
+            if not dt > 0 or np.max(np.abs(steps - dt)) > 1e-6 * dt:
                 raise DataError(f"{self.path}: time column is not uniform and increasing")
             rate = 1.0 / dt
+            lo, hi = SAMPLE_RATE_RANGE
+            if not lo <= rate <= hi:
+                raise DataError(f"{self.path}: time column gives a point rate of {rate:g} Hz, outside {lo:g}-{hi:g} Hz "
+                                f"(times must be in seconds)")
             if o.file_sample_rate is not None and abs(o.file_sample_rate - rate) > 1e-6 * rate:
                 raise DataError(
                     f"{self.path}: time column gives {rate:g} Hz but file_sample_rate is {o.file_sample_rate:g} Hz"
@@ -150,12 +164,15 @@ class FromFile(DesignedExcitation):
         # Resolve the record grid (the options stay as the user gave them).
         self.sample_rate = o.sample_rate or rate
         played = o.periods * points.size / rate
-        if o.n_samples is not None:
-            self.n_samples = o.n_samples
-        elif o.duration is not None:
-            self.n_samples = int(round(o.duration * self.sample_rate))
-        else:
-            self.n_samples = int(round(played * self.sample_rate))
+        try:
+            if o.n_samples is not None:
+                self.n_samples = o.n_samples
+            elif o.duration is not None:
+                self.n_samples = samples(o.duration * self.sample_rate, "record (duration x sample_rate)")
+            else:
+                self.n_samples = samples(played * self.sample_rate, "played waveform")
+        except ValueError as exc:
+            raise DataError(f"{self.path}: {exc}") from None
         if self.n_samples < 16:
             raise DataError(f"{self.path}: record of {self.n_samples} samples is too short (at least 16)")
 

@@ -21,6 +21,7 @@ from pydantic import Field, model_validator
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
+from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate
 
 
 class MultisineOptions(ExcitationOptions):
@@ -32,10 +33,10 @@ class MultisineOptions(ExcitationOptions):
         None, description="explicit lines [Hz], multiples of 1/period (replaces f_min/f_max/step)"
     )
     phases: Literal["schroeder", "random", "zero"] = Field("schroeder", description="phase choice")
-    seed: int = Field(0, description="seed of random phases")
-    amplitude: float = Field(1.0, gt=0, description="peak of the record [N or V]")
-    sample_rate: float = Field(25.0e6, gt=0, description="sampling rate [Hz]")
-    n_samples: int = Field(5000, ge=16, description="record length [samples]")
+    seed: int = Field(0, ge=0, description="seed of random phases (numpy seeds are non-negative)")
+    amplitude: Amplitude = Field(1.0, description="peak of the record [N or V]")
+    sample_rate: SampleRate = Field(25.0e6, description="sampling rate [Hz]")
+    n_samples: RecordSamples = Field(5000, description="record length [samples]")
     periods: int = Field(1, ge=1, description="whole periods in the record (n_samples must be divisible)")
 
     @model_validator(mode="after")
@@ -44,6 +45,8 @@ class MultisineOptions(ExcitationOptions):
             raise ValueError(f"n_samples {self.n_samples} is not divisible by periods {self.periods}")
         if self.frequencies is None and self.f_min > self.f_max:
             raise ValueError("f_min must not exceed f_max")
+        if self.frequencies is None and self.f_min >= self.sample_rate / 2:
+            raise ValueError(f"f_min must stay below the Nyquist frequency {self.sample_rate / 2:g} Hz")
         lines = self.lines()
         if lines.size == 0:
             raise ValueError(f"no grid line between f_min and f_max (line spacing {self.line_spacing:g} Hz)")
@@ -71,7 +74,7 @@ class MultisineOptions(ExcitationOptions):
                 raise ValueError(f"frequency {f:g} Hz is not a positive multiple of the line spacing {f0:g} Hz")
             return np.unique(np.round(m).astype(np.int64))
         first = max(1, int(np.ceil(self.f_min / f0 - 1e-9)))
-        last = int(np.floor(self.f_max / f0 + 1e-9))
+        last = int(np.floor(min(self.f_max, self.sample_rate) / f0 + 1e-9))  # lines above Nyquist are refused
         m = np.arange(first, last + 1, self.step, dtype=np.int64)
         return m[m % 2 == 1] if self.harmonics == "odd" else m
 

@@ -20,14 +20,15 @@ from scipy.signal import max_len_seq
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
+from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
 
 
 class PrbsOptions(ExcitationOptions):
     order: int = Field(9, ge=3, le=20, description="LFSR order n; period 2^n - 1 bits")
     bit_width: float = Field(2.5e-6, gt=0, description="duration of one bit [s]")
-    amplitude: float = Field(1.0, gt=0, description="level of a bit, +-amplitude [N or V]")
-    sample_rate: float = Field(6.25e6, gt=0, description="sampling rate [Hz]")
-    n_samples: int | None = Field(None, ge=16, description="record length [samples]")
+    amplitude: Amplitude = Field(1.0, description="level of a bit, +-amplitude [N or V]")
+    sample_rate: SampleRate = Field(6.25e6, description="sampling rate [Hz]")
+    n_samples: RecordSamples | None = Field(None, description="record length [samples]")
     duration: float | None = Field(None, gt=0, description="record length [s] (alternative to n_samples)")
     periods: int | None = Field(
         None, ge=1, le=1000, description="record length in whole periods (alternative to n_samples)"
@@ -45,7 +46,11 @@ class PrbsOptions(ExcitationOptions):
         one_period = self.period_bits * self.bit_width * self.sample_rate
         if self.periods is not None and (self.n_samples is not None or self.duration is not None):
             raise ValueError("give one of n_samples, duration or periods")
-        default = int(round((self.periods or 1) * one_period))
+        default = 0
+        if self.n_samples is None and self.duration is None:
+            default = samples((self.periods or 1) * one_period, "record of whole periods")
+        if self.n_samples is None and self.duration is not None:
+            samples(self.duration * self.sample_rate, "record (duration x sample_rate)")
         self.n_samples = record_length(self.n_samples, self.duration, self.sample_rate, default)
         if self.bit_width * self.sample_rate < 1.0:
             raise ValueError(
@@ -72,7 +77,7 @@ class Prbs(DesignedExcitation):
         levels = 2.0 * mls_bits(o.order) - 1.0
         p = levels.size
         # Bit index of each time; the tiny offset keeps exact edges on the new bit.
-        j = (np.floor(np.asarray(t) / o.bit_width + 1e-9).astype(np.int64) + o.shift) % o.period_bits
+        j = (np.floor(np.asarray(t) / o.bit_width + 1e-9).astype(np.int64) + o.shift % o.period_bits) % o.period_bits
         sign = np.where(j >= p, -1.0, 1.0) if o.inverse_repeat else 1.0
         return o.amplitude * sign * levels[j % p]
 

@@ -19,6 +19,7 @@ from pydantic import Field, model_validator
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
+from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
 
 
 class SineSweepOptions(ExcitationOptions):
@@ -26,15 +27,19 @@ class SineSweepOptions(ExcitationOptions):
     f_start: float = Field(0.3e6, ge=0, description="instantaneous frequency at t = 0 [Hz]")
     f_stop: float = Field(0.7e6, ge=0, description="instantaneous frequency at the end of the sweep [Hz]")
     sweep_duration: float | None = Field(None, gt=0, description="sweep length T [s] (default: the record)")
-    amplitude: float = Field(1.0, gt=0, description="peak amplitude A [N or V]")
+    amplitude: Amplitude = Field(1.0, description="peak amplitude A [N or V]")
     taper: float = Field(0.0, ge=0, le=1, description="fraction of the sweep inside the Tukey cosine tapers")
-    sample_rate: float = Field(25.0e6, gt=0, description="sampling rate [Hz]")
-    n_samples: int | None = Field(None, ge=16, description="record length [samples] (default 5000)")
+    sample_rate: SampleRate = Field(25.0e6, description="sampling rate [Hz]")
+    n_samples: RecordSamples | None = Field(None, description="record length [samples] (default 5000)")
     duration: float | None = Field(None, gt=0, description="record length [s] (alternative to n_samples)")
 
     @model_validator(mode="after")
     def _check(self):
-        default = int(round(self.sweep_duration * self.sample_rate)) if self.sweep_duration else 5000
+        default = 5000
+        if self.sweep_duration:
+            default = samples(self.sweep_duration * self.sample_rate, "sweep (sweep_duration x sample_rate)")
+        if self.n_samples is None and self.duration is not None:
+            samples(self.duration * self.sample_rate, "record (duration x sample_rate)")
         self.n_samples = record_length(self.n_samples, self.duration, self.sample_rate, default)
         if self.n_samples < 16:
             raise ValueError(f"record of {self.n_samples} samples is too short (at least 16)")

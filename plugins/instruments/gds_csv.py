@@ -22,8 +22,11 @@ from typing import Any
 import numpy as np
 
 from mbus_framework.errors import DataError
+from mbus_framework.pipeline.storage import read_regular_file
 
 COUNTS_PER_DIVISION = 25.0
+PERIOD_RANGE = (1e-12, 100.0)
+"""Plausible sampling period [s]."""
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([pnuµmkMG]?)([A-Za-z/]*)\s*$")
 _PREFIX = {"": 1.0, "p": 1e-12, "n": 1e-9, "u": 1e-6, "µ": 1e-6, "m": 1e-3, "k": 1e3, "M": 1e6, "G": 1e9}
 
@@ -50,7 +53,10 @@ def parse_number(text: str) -> float:
     if not m:
         raise ValueError(text)
     value, prefix, _unit = m.groups()
-    return float(value) * _PREFIX[prefix]
+    number = float(value) * _PREFIX[prefix]
+    if not np.isfinite(number):
+        raise ValueError(text)
+    return number
 
 
 def _is_number(text: str) -> bool:
@@ -64,10 +70,12 @@ def _is_number(text: str) -> bool:
 def read_gds_csv(path: str | Path) -> CsvTrace:
     """Read one channel file; raises DataError naming the file for anything malformed."""
     path = Path(path)
-    try:
-        raw_text = path.read_bytes()
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raw_text = read_regular_file(path, "GDS-2000 CSV file")
+    if raw_text[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        try:
+            raw_text = raw_text.decode("utf-16").encode("utf-8")
+        except UnicodeDecodeError:
+            raise DataError(f"{path}: starts with a UTF-16 byte-order mark but is not UTF-16 text") from None
     try:
         text = raw_text.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -98,9 +106,12 @@ def read_gds_csv(path: str | Path) -> CsvTrace:
         if not fields:
             continue
         try:
-            rows.append([float(f) for f in fields])
+            row = [float(f) for f in fields]
         except ValueError:
             raise DataError(f"{path}: line {i + 1}: malformed data row {lines[i].strip()[:60]!r}") from None
+        if not all(np.isfinite(row)):
+            raise DataError(f"{path}: line {i + 1}: non-finite value in data row {lines[i].strip()[:60]!r}")
+        rows.append(row)
     widths = {len(r) for r in rows}
     if len(widths) != 1:
         raise DataError(f"{path}: data rows have differing numbers of values ({sorted(widths)})")
@@ -117,7 +128,7 @@ def read_gds_csv(path: str | Path) -> CsvTrace:
         try:
             expected = int(parse_number(length))
         except ValueError:
-            raise DataError(f"{path}: header 'Memory Length' is not a number ({length!r})") from None
+            raise DataError(f"{path}: header 'Memory Length' is not a number ({length[:40]!r})") from None
         if expected != trace.volts.size:
             raise DataError(f"{path}: header says Memory Length {expected} but the file has "
                             f"{trace.volts.size} samples (truncated file?)")
@@ -132,7 +143,7 @@ def _header_number(path: Path, header: dict[str, str], key: str) -> float:
     try:
         return parse_number(header[key])
     except ValueError:
-        raise DataError(f"{path}: header '{key}' is not a number ({header[key]!r})") from None
+        raise DataError(f"{path}: header '{key}' is not a number ({header[key][:40]!r})") from None
 
 
 def _raw_layout(path: Path, header: dict[str, str], codes: np.ndarray) -> CsvTrace:
@@ -140,8 +151,9 @@ def _raw_layout(path: Path, header: dict[str, str], codes: np.ndarray) -> CsvTra
         raise DataError(f"{path}: raw-sample rows must be integer codes")
     scale = _header_number(path, header, "Vertical Scale")
     period = _header_number(path, header, "Sampling Period")
-    if scale <= 0 or period <= 0:
-        raise DataError(f"{path}: Vertical Scale {scale:g} and Sampling Period {period:g} must be positive")
+    if scale <= 0 or not PERIOD_RANGE[0] <= period <= PERIOD_RANGE[1]:
+        raise DataError(f"{path}: Vertical Scale {scale:g} must be positive and Sampling Period {period:g} s within "
+                        f"{PERIOD_RANGE[0]:g}-{PERIOD_RANGE[1]:g} s")
     volts = codes * scale / COUNTS_PER_DIVISION
     t = np.arange(codes.size) * period
     return CsvTrace(path, t, volts, header, "raw",
@@ -157,6 +169,8 @@ def _time_value_layout(path: Path, header: dict[str, str], rows: np.ndarray) -> 
         dt = _header_number(path, header, "Sampling Period")
     else:
         dt = (t_file[-1] - t_file[0]) / (n - 1)
+    if not PERIOD_RANGE[0] <= dt <= PERIOD_RANGE[1]:
+        raise DataError(f"{path}: sample interval {dt:g} s is not within {PERIOD_RANGE[0]:g}-{PERIOD_RANGE[1]:g} s")
     t = t_file[0] + np.arange(n) * dt
     # Printed times carry a few significant digits: allow half a step plus the print resolution.
     tolerance = 0.5 * dt + 1e-4 * float(np.max(np.abs(t_file)))

@@ -35,13 +35,19 @@ from scipy import signal
 
 from mbus_framework.engine.physics import onset_index
 from mbus_framework.errors import DataError
-from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_npz, to_jsonable
+from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_npz, read_npz, read_regular_file, to_jsonable
 
 FORMAT = "mbus-lab-shots/1"
 SHOT_DIR = "shots"
 ACQUISITION_FILE = "acquisition.json"
 EXCITATION_FILE = "excitation.npz"
 MIN_SAMPLES = 16
+MAX_SHOTS = 10_000
+"""The lab backend saves at most this many shots."""
+DT_RANGE = (1e-12, 100.0)
+"""Plausible scope sample interval [s]."""
+MAX_REFERENCE_SAMPLES = 50_000_000
+"""Longest played excitation on the scope's grid [samples]."""
 
 
 class AlignOptions(BaseModel):
@@ -91,7 +97,11 @@ class Reference:
     def on_grid(self, dt: float) -> np.ndarray:
         """Zero-order-hold resampling onto a grid of step ``dt`` [s] (the whole burst)."""
         total = self.values.size * self.repeats
-        n = int(np.floor(total / (self.rate * dt) + 1e-6))
+        span = total / (self.rate * dt)
+        if not np.isfinite(span) or span > MAX_REFERENCE_SAMPLES:
+            raise DataError(f"the played excitation ({total} points at {self.rate:g} Hz) spans {span:.3g} samples of "
+                            f"{dt:g} s, more than {MAX_REFERENCE_SAMPLES:,} (wrong point rate or sample interval?)")
+        n = int(np.floor(span + 1e-6))
         idx = np.floor(np.arange(n) * dt * self.rate + 1e-6).astype(np.int64)
         return np.asarray(self.values, dtype=float)[idx % self.values.size]
 
@@ -141,24 +151,33 @@ def find_shot_dir(path: Path) -> Path | None:
 
 
 def load_shot(path: Path) -> Shot:
+    """One saved shot, checked: dt plausible, u and y equally long, finite, real."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in ("dt", "u", "y") if k not in z.files]
-            if missing:
-                raise DataError(f"{path}: not a shot file (missing {', '.join(missing)})")
-            meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
-            shot = Shot(float(z["dt"]), np.asarray(z["u"], float), np.asarray(z["y"], float),
-                        z["u_raw"] if "u_raw" in z.files else None, z["y_raw"] if "y_raw" in z.files else None,
-                        meta)
-    except DataError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - corrupt zip, bad JSON, ...
-        raise DataError(f"{path}: unreadable shot file ({type(exc).__name__}: {exc})") from None
-    if shot.u.shape != shot.y.shape or shot.u.ndim != 1:
-        raise DataError(f"{path}: channels u and y differ in length ({shot.u.size} vs {shot.y.size})")
-    if not (np.isfinite(shot.dt) and shot.dt > 0):
-        raise DataError(f"{path}: sample interval dt = {shot.dt!r} is not positive")
-    return shot
+        z = read_npz(path, "shot file")
+    except DataError as exc:
+        raise DataError(f"{path}: unreadable shot file ({str(exc).partition(': ')[2]})") from None
+    missing = [k for k in ("dt", "u", "y") if k not in z]
+    if missing:
+        raise DataError(f"{path}: not a shot file (missing {', '.join(missing)})")
+    try:
+        meta = json.loads(str(z["meta"])) if "meta" in z else {}
+        dt = float(np.asarray(z["dt"], float).reshape(-1)[0]) if np.asarray(z["dt"]).size == 1 else float("nan")
+        u, y = np.asarray(z["u"], float), np.asarray(z["y"], float)
+        u_raw, y_raw = (np.asarray(z[k], np.int16) if k in z else None for k in ("u_raw", "y_raw"))
+    except (ValueError, TypeError, OverflowError) as exc:  # bad JSON, strings or complex numbers
+        raise DataError(f"{path}: unreadable shot file ({type(exc).__name__}: {str(exc)[:100]})") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{path}: shot meta must be a JSON object, not {type(meta).__name__}")
+    if u.shape != y.shape or u.ndim != 1:
+        raise DataError(f"{path}: channels u and y differ in length or are not 1-D ({u.shape} vs {y.shape})")
+    if not (np.isfinite(dt) and DT_RANGE[0] <= dt <= DT_RANGE[1]):
+        raise DataError(f"{path}: sample interval dt = {dt!r} s is not within {DT_RANGE[0]:g}-{DT_RANGE[1]:g} s")
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+        raise DataError(f"{path}: channel u or y has non-finite samples")
+    for name, raw, volts in (("u_raw", u_raw, u), ("y_raw", y_raw, y)):
+        if raw is not None and raw.shape != volts.shape:
+            raise DataError(f"{path}: {name} has {raw.size} codes but the channel {volts.size} samples")
+    return Shot(dt, u, y, u_raw, y_raw, meta)
 
 
 def rescale(shot: Shot, counts_per_division: float) -> Shot:
@@ -166,8 +185,15 @@ def rescale(shot: Shot, counts_per_division: float) -> Shot:
     if shot.u_raw is None or shot.y_raw is None:
         return shot
     m = shot.meta
-    u = shot.u_raw.astype(float) * float(m["u_volts_per_div"]) / counts_per_division
-    y = shot.y_raw.astype(float) * float(m["y_volts_per_div"]) / counts_per_division
+    try:
+        u_vdiv, y_vdiv = float(m["u_volts_per_div"]), float(m["y_volts_per_div"])
+    except (KeyError, TypeError, ValueError):
+        raise DataError(f"shot {m.get('index', '?')}: no usable u_volts_per_div / y_volts_per_div in its meta "
+                        f"(cannot rescale the raw codes)") from None
+    if not (np.isfinite(u_vdiv) and np.isfinite(y_vdiv) and u_vdiv > 0 and y_vdiv > 0):
+        raise DataError(f"shot {m.get('index', '?')}: V/div {u_vdiv:g} / {y_vdiv:g} must be positive")
+    u = shot.u_raw.astype(float) * u_vdiv / counts_per_division
+    y = shot.y_raw.astype(float) * y_vdiv / counts_per_division
     return Shot(shot.dt, u, y, shot.u_raw, shot.y_raw, dict(m, counts_per_division=counts_per_division))
 
 
@@ -189,29 +215,61 @@ def load_run(path: Path) -> SavedRun:
         raise DataError(f"{path}: no saved shots (expected {SHOT_DIR}/{ACQUISITION_FILE} and shot_*.npz)")
     acq_file = shot_dir / ACQUISITION_FILE
     acquisition: dict[str, Any] = {}
-    if acq_file.is_file():
-        try:
-            acquisition = json.loads(acq_file.read_text(encoding="utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise DataError(f"{acq_file}: not valid JSON ({exc})") from None
-        if acquisition.get("format") != FORMAT:
-            raise DataError(f"{acq_file}: unknown format {acquisition.get('format')!r} (expected {FORMAT})")
+    if acq_file.exists():
+        acquisition = _read_acquisition(acq_file)
     files = sorted(shot_dir.glob("shot_*.npz"))
     if not files:
         raise DataError(f"{shot_dir}: no shot_*.npz files (the acquisition saved no shot)")
+    if len(files) > MAX_SHOTS:
+        raise DataError(f"{shot_dir}: {len(files)} shot files, more than a lab run saves ({MAX_SHOTS})")
     shots = [load_shot(f) for f in files]
-    reference = designed_t = designed_u = None
-    exc_file = shot_dir / EXCITATION_FILE
-    if exc_file.is_file():
-        try:
-            with np.load(exc_file, allow_pickle=False) as z:
-                designed_t, designed_u = np.asarray(z["t"], float), np.asarray(z["u"], float)
-                if "points" in z.files:
-                    reference = Reference(np.asarray(z["points"], float), float(z["points_rate_hz"]),
-                                          int(z["repeats"]))
-        except Exception as exc:  # noqa: BLE001
-            raise DataError(f"{exc_file}: unreadable ({type(exc).__name__}: {exc})") from None
+    reference, designed_t, designed_u = _read_excitation(shot_dir / EXCITATION_FILE)
     return SavedRun(shot_dir, acquisition, shots, files, reference, designed_t, designed_u)
+
+
+def _read_acquisition(path: Path) -> dict[str, Any]:
+    """``acquisition.json``: a JSON object of the expected format with sensibly typed fields."""
+    try:
+        acquisition = json.loads(read_regular_file(path, "acquisition record", 16 * 2**20).decode("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not valid JSON ({str(exc)[:100]})") from None
+    if not isinstance(acquisition, dict):
+        raise DataError(f"{path}: must be a JSON object, not {type(acquisition).__name__}")
+    if acquisition.get("format") != FORMAT:
+        raise DataError(f"{path}: unknown format {str(acquisition.get('format'))[:40]!r} (expected {FORMAT})")
+    for key, kinds in (("status", str), ("error", (str, type(None))), ("processing", (dict, type(None))),
+                       ("instruments", dict), ("shots_requested", int), ("shots_saved", int)):
+        if key in acquisition and not isinstance(acquisition[key], kinds):
+            raise DataError(f"{path}: field {key!r} has the wrong type ({type(acquisition[key]).__name__})")
+    return acquisition
+
+
+def _read_excitation(path: Path) -> tuple[Reference | None, np.ndarray | None, np.ndarray | None]:
+    """``excitation.npz``: (what the generator played, designed t, designed u), each checked."""
+    if not path.exists():
+        return None, None, None
+    z = read_npz(path, "excitation file")
+    try:
+        t, u = np.asarray(z["t"], float), np.asarray(z["u"], float)
+        reference = None
+        if "points" in z:
+            points = np.asarray(z["points"], float)
+            rate = float(np.asarray(z["points_rate_hz"], float).reshape(-1)[0])
+            repeats = int(np.asarray(z["repeats"]).reshape(-1)[0]) if "repeats" in z else 1
+            if points.ndim != 1 or not points.size or not np.all(np.isfinite(points)):
+                raise DataError(f"{path}: points must be a non-empty 1-D array of finite codes")
+            if not (np.isfinite(rate) and rate > 0) or not 1 <= repeats <= 1_000_000:
+                raise DataError(f"{path}: points_rate_hz {rate!r} must be positive and repeats {repeats} >= 1")
+            reference = Reference(points, rate, repeats)
+    except DataError:
+        raise
+    except (KeyError, ValueError, TypeError, IndexError, OverflowError) as exc:
+        raise DataError(f"{path}: unreadable ({type(exc).__name__}: {str(exc)[:100]})") from None
+    if t.ndim != 1 or t.shape != u.shape or t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+        raise DataError(f"{path}: designed t and u must be equally long, finite 1-D arrays")
+    if not t[1] > t[0]:
+        raise DataError(f"{path}: designed time t does not increase")
+    return reference, t, u
 
 
 # -- processing ------------------------------------------------------------------------------
@@ -290,7 +348,11 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
     align = options.align
     meta: dict[str, Any] = {"shots_averaged": len(shots), "dt_s": dt, "input": options.input,
                             "u_gain": options.u_gain, "y_gain": options.y_gain}
-    ref = reference.on_grid(dt) if reference is not None else None
+    try:
+        ref = reference.on_grid(dt) if reference is not None else None
+    except DataError as exc:
+        raise DataError(f"{source}: {exc}") from None
+    cuts = []
     if align.enabled and ref is not None:
         if ref.size < MIN_SAMPLES:
             raise DataError(f"{source}: the excitation covers only {ref.size} scope samples of {dt:.3g} s")

@@ -34,11 +34,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, GeneralizedMaxwellLaw, KelvinVoigtLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from plugins.models.bounds import Elements
 
 
 class GeneralizedMaxwellOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    n_elements: int = Field(10, ge=1, le=400, description="number of elements n")
+    n_elements: Elements = Field(10, description="number of elements n")
     n_arms: int = Field(2, ge=1, le=8, description="Maxwell arms K of the Prony series")
     shear_link: Literal["kelvin_voigt", "generalized_maxwell", "sls", "maxwell"] = Field(
         "kelvin_voigt", description="link law to the surroundings")

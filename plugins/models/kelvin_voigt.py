@@ -25,12 +25,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, KelvinVoigtLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from plugins.models.bounds import Elements
 from mbus_framework.engine.physics import first_arrival_time
 
 
 class KelvinVoigtOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    n_elements: int = Field(10, ge=1, le=400, description="number of elements n")
+    n_elements: Elements = Field(10, description="number of elements n")
 
 
 class KelvinVoigtChain(ChainModel):

@@ -49,6 +49,7 @@ from mbus_framework.engine.chain import (
 )
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from plugins.models.bounds import Elements, check_elements
 from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
 from mbus_framework.engine.physics import first_arrival_time
 from mbus_framework.interfaces.sample import Sample
@@ -62,7 +63,7 @@ class LayerOptions(BaseModel):
     name: str | None = Field(None, description="layer name used in parameter names (default layer<i>)")
     length: float | None = Field(None, gt=0, description="thickness L_l [m]; one layer may omit it (the rest)")
     density: float | None = Field(None, gt=0, description="density rho_l [kg/m^3] (default: sample density)")
-    n_elements: int = Field(5, ge=1, le=400, description="elements n_l in this layer")
+    n_elements: Elements = Field(5, description="elements n_l in this layer")
     link: LawName | None = Field(None, description="normal link law (default: the model's `link`)")
     shear_link: LawName | Literal["same", "none"] | None = Field(None, description="shear link law (default: the model's)")
     fixed: dict[str, float] = Field(default_factory=dict, description="coefficients or properties held fixed")
@@ -90,6 +91,7 @@ class LayeredOptions(BaseModel):
             raise ValueError(f"layer names must be unique, got {names}")
         if sum(layer.length is None for layer in self.layers) > 1:
             raise ValueError("at most one layer may omit its length (it takes the rest of sample.length)")
+        check_elements(sum(layer.n_elements for layer in self.layers), "elements in all layers together")
         return self
 
 

@@ -40,11 +40,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, MaxwellLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from plugins.models.bounds import Elements
 
 
 class MaxwellOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    n_elements: int = Field(10, ge=1, le=400, description="number of elements n")
+    n_elements: Elements = Field(10, description="number of elements n")
     shear_link: Literal["same", "maxwell", "kelvin_voigt", "sls"] = Field(
         "same", description="link law to the surroundings ('same' = Maxwell)")
 

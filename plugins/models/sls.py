@@ -38,11 +38,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, StandardLinearSolidLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
+from plugins.models.bounds import Elements
 
 
 class SlsOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    n_elements: int = Field(10, ge=1, le=400, description="number of elements n")
+    n_elements: Elements = Field(10, description="number of elements n")
     shear_link: Literal["same", "sls", "kelvin_voigt", "maxwell"] = Field(
         "same", description="link law to the surroundings ('same' = SLS)")
 
