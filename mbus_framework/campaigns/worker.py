@@ -3,8 +3,9 @@
 
 Averaged replicates: each replicate record is acquired through its own run config and saved
 (``replicates/r<k>/measurement.csv``) before anything is fitted; their mean is written to
-``replicates/averaged.csv`` and fitted by the ``file`` backend, so the run folder's config.yaml
-re-runs on its own. A failure never escapes: a data or fit error (``MbusError``) becomes a row
+``replicates/averaged.csv`` and fitted, with the ``file`` backend reading that file in the run
+folder's config.yaml, so the folder re-runs on its own. (The replicates are staged next to the
+run folder and moved into it once the run has reserved it: a run folder starts empty.) A failure never escapes: a data or fit error (``MbusError``) becomes a row
 with its error and is remembered for resuming (the same data fail the same way); any other
 exception becomes a row too, with the traceback in ``error.txt``, and is retried on a re-run.
 """
@@ -26,7 +27,7 @@ from mbus_framework.campaigns.rows import failed_row, result_row
 from mbus_framework.errors import MbusError
 from mbus_framework.pipeline.components import build_components
 from mbus_framework.pipeline.config import validate_structure
-from mbus_framework.pipeline.run import acquire, execute
+from mbus_framework.pipeline.run import acquire, designed_waveform, execute
 from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text, write_waveforms
 
 #: Written last into a finished run folder: the content key and the table row (for resuming).
@@ -40,8 +41,9 @@ def run_task(task: SampleTask) -> dict[str, Any]:
     t0 = time.perf_counter()
     run_dir = Path(task.run_dir)
     rel = str(Path("runs") / run_dir.name)
-    if run_dir.exists():  # an unfinished or outdated run of this sample: start clean
-        shutil.rmtree(run_dir)
+    for stale in (run_dir, _staging(run_dir)):  # an unfinished or outdated run of this sample: start clean
+        if stale.exists():
+            shutil.rmtree(stale)
     run_dir.mkdir(parents=True)
     cacheable = True
     try:
@@ -75,10 +77,16 @@ def _fit(task: SampleTask, run_dir: Path) -> tuple[dict[str, Any], dict[str, flo
     if len(task.configs) == 1:
         outcome = execute(task.configs[0], [], run_dir, plots=task.plots, source=task.source)
         return outcome.result, None
-    path, mean = _average(task, run_dir)
-    config = copy.deepcopy(task.configs[0])
-    config["backend"] = {"name": "file", "options": {"path": str(path)}}
-    outcome = execute(config, [], run_dir, plots=task.plots, source=task.source)
+    staging = _staging(run_dir)
+    try:
+        mean = _average(task, staging)
+        config = copy.deepcopy(task.configs[0])
+        config["backend"] = {"name": "file", "options": {"path": str(run_dir / "replicates" / AVERAGED_FILE)}}
+        outcome = execute(config, [], run_dir, plots=task.plots, source=task.source, measurement=mean)
+    finally:  # the saved replicates belong to the run folder, whatever happened
+        if staging.exists():
+            run_dir.mkdir(parents=True, exist_ok=True)
+            staging.rename(run_dir / "replicates")
     result = outcome.result
     result["replicates"] = {"averaged": [f"r{n}" for n in task.replicate_numbers], "file": f"replicates/{AVERAGED_FILE}"}
     atomic_write_json(run_dir / "result.json", result)
@@ -86,19 +94,24 @@ def _fit(task: SampleTask, run_dir: Path) -> tuple[dict[str, Any], dict[str, flo
     return result, truth
 
 
-def _average(task: SampleTask, run_dir: Path):
-    """Acquire (and save) every replicate record, then write their sample-wise mean."""
+def _staging(run_dir: Path) -> Path:
+    return run_dir.parent / f".{run_dir.name}.replicates"
+
+
+def _average(task: SampleTask, folder: Path):
+    """Acquire (and save) every replicate record into ``folder``, then write their sample-wise
+    mean there; returns the mean."""
     records, names = [], []
     for number, config in zip(task.replicate_numbers, task.configs):
         c = build_components(validate_structure(config, task.source), task.source)
-        rep_dir = run_dir / "replicates" / f"r{number}"
+        rep_dir = folder / f"r{number}"
         rep_dir.mkdir(parents=True, exist_ok=True)
-        records.append(acquire(c, rep_dir, c.excitation.waveform()))
+        records.append(acquire(c, rep_dir, designed_waveform(c)))
         names.append(f"r{number}")
     mean = average_records(records, names, task.source)
-    path = write_waveforms(run_dir / "replicates" / AVERAGED_FILE, mean.t, mean.u, mean.y)
-    atomic_write_json(run_dir / "replicates" / "averaged.json", {"truth": mean.truth, "meta": mean.meta})
-    return path, mean
+    write_waveforms(folder / AVERAGED_FILE, mean.t, mean.u, mean.y)
+    atomic_write_json(folder / "averaged.json", {"truth": mean.truth, "meta": mean.meta})
+    return mean
 
 
 def _recorded_truth(run_dir: Path) -> dict[str, float]:

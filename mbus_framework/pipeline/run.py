@@ -25,7 +25,7 @@ from mbus_framework.pipeline import interrupts, limits
 from mbus_framework.pipeline.components import Components, build_components
 from mbus_framework.pipeline.figures import FitData
 from mbus_framework.pipeline.recorded_input import consistency_warnings, excitation_section
-from mbus_framework.pipeline.results import build_result
+from mbus_framework.pipeline.results import MEASUREMENT_WARNING, build_result
 from mbus_framework.pipeline.run_folder import RunFolder, default_name
 from mbus_framework.pipeline.run_report import REPORT_FILE, write_report
 from mbus_framework.estimation.problem import FitProblem, FitResult, Progress
@@ -143,12 +143,9 @@ def designed_waveform(c: Components) -> Waveform | None:
 
 
 def input_warnings(m: Measurement, designed: Waveform | None) -> list[str]:
-    """The backend's own warnings (e.g. a partial acquisition) and, with a design, where the
-    design and the record disagree (:func:`~mbus_framework.pipeline.recorded_input.consistency_warnings`)."""
-    out = [str(w) for w in m.meta.get("warnings", [])]
-    if designed is not None:
-        out += consistency_warnings(designed, m)
-    return out
+    """Where the design and the record disagree (:func:`~mbus_framework.pipeline.recorded_input.consistency_warnings`);
+    the backend's own warnings (a partial acquisition) are in the result's ``measurement:`` lines."""
+    return consistency_warnings(designed, m) if designed is not None else []
 
 
 def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
@@ -166,7 +163,9 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     with limits.estimation_boundary(c):  # the uncertainty analysis
         result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
     result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed, m)
-    result["warnings"] = input_warnings(m, designed) + list(result.get("warnings", []))
+    measured = [w for w in result.get("warnings", []) if w.startswith(MEASUREMENT_WARNING)]
+    others = [w for w in result.get("warnings", []) if not w.startswith(MEASUREMENT_WARNING)]
+    result["warnings"] = measured + input_warnings(m, designed) + others
     return RunOutcome(None, c, m, fit, result, problem, designed)
 
 
