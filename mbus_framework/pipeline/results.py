@@ -161,16 +161,17 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
     if not fit.success:
         out.append(f"the solver did not report convergence ({fit.message}); treat the estimates with care")
     strategy = result.get("strategy") or {}
-    if strategy.get("accepted_because", "").startswith("best of"):
+    if strategy and not strategy.get("accepted", True):
         out.append(
-            "the global minimum is not confirmed: no start left white residuals and no two starts agreed "
-            "(model mismatch, coloured noise, or a multimodal cost); consider more starts or another model"
+            "the global minimum is not confirmed: "
+            + str((strategy.get("verdict") or {}).get("reason") or "no start left a residual consistent with the noise")
+            + "; the estimates may be a local minimum (or the model does not describe the data)"
         )
     edge = at_box_edge(strategy, result["parameters"])
     if edge:
         out.append(
-            f"{_join(edge)} ended on the edge of the search box (the initial value x/÷ the strategy's "
-            f"search_box): the data do not pin {'it' if len(edge) == 1 else 'them'} down"
+            f"{_join(edge)} ended on the edge of the search region (the plausible material range, widened "
+            f"where needed): the data do not pin {'it' if len(edge) == 1 else 'them'} down"
         )
     unc = result.get("uncertainty")
     if not unc:
