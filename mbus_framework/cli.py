@@ -3,8 +3,10 @@
     mbus-run CONFIG [-o OUTDIR] [--set dotted.key=value ...] [--no-plots] [--quiet]
     mbus-run --list-plugins
 
-User errors (bad config, bad data, instrument failure) print one line and exit non-zero
-(2 for input errors, 3 for instruments); a Python traceback means a bug.
+A plain fit goes through the Python API (:func:`mbus_framework.run_config`), so the command line and
+Python produce the same run folder. User errors (bad config, bad data, instrument failure)
+print one line and exit non-zero (2 for input errors, 3 for instruments); a Python traceback
+means a bug.
 """
 from __future__ import annotations
 
@@ -60,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="rank candidate excitations by D-optimality for the config's model and transducer band",
     )
-    p.add_argument("--no-plots", action="store_true", help="do not write PNG figures")
+    p.add_argument("--no-plots", action="store_true", help="do not draw figures (PNGs; report.html without plots)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
 
@@ -125,23 +127,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
+        from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
-        from mbus_framework.pipeline.report import summary_text
-        from mbus_framework.pipeline.run import execute
 
         progress = None if args.quiet else make_progress()
         special = _special_mode(args, progress)
         if special is not None:
             print(special)
             return 0
-        outcome = execute(
-            args.config,
-            args.overrides,
-            args.out,
-            progress=progress,
-            plots=False if args.no_plots else None,
-        )
-        print(outcome.run_dir if args.quiet else summary_text(outcome.result, outcome.run_dir))
+        result = run_config(args.config, args.overrides, args.out, progress=progress if progress is not None else False,
+                     plots=False if args.no_plots else None)
+        print(result.run_dir if args.quiet else result.summary())
         return 0
     except MbusError as exc:
         print(f"mbus-run: error: {exc}", file=sys.stderr)

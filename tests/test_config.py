@@ -148,11 +148,24 @@ def test_non_utf8_file(tmp_path):
 # ---------------------------------------------------------------------------------------
 # Stage 1: core structure
 # ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("section", ["sample", "model", "excitation", "backend"])
+@pytest.mark.parametrize("section", ["sample", "model", "backend"])
 def test_missing_section(tmp_path, section):
     msg = config_error(load_config, write(tmp_path, variant(**{section: None})))
     assert f"{section}: required key is missing" in msg
     assert str(tmp_path / "run.yaml") in msg
+
+
+def test_missing_excitation_is_an_error_only_for_a_backend_that_plays_it(tmp_path, registry):
+    """A simulated rig plays the excitation: without one, a one-line error naming the key; the
+    file backend reads the input from the record and needs none."""
+    path = write(tmp_path, variant(excitation=None))
+    config = load_config(path)
+    assert config.excitation is None
+    msg = config_error(build_components, config, str(path), registry)
+    assert msg.startswith(f"{path}: excitation: required by backend 'simulated'")
+    recorded = variant(excitation=None, backend={"name": "file", "options": {"path": "record.csv"}})
+    c = build_components(load_config(write(tmp_path, recorded, "recorded.yaml")), "recorded.yaml", registry)
+    assert c.excitation is None and c.backend.needs_excitation is False
 
 
 def test_missing_key_inside_a_section(tmp_path):

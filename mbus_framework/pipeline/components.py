@@ -24,11 +24,10 @@ class Components:
     registry: Registry
     sample: Sample
     model: MediumModel
-    excitation: Excitation
+    excitation: Excitation | None  # None: the backend reads the input from the record
     backend: Backend
     compensator: Compensator
     solver: Solver
-
 
 
 def build_components(config: RunConfig, source: str = "<config>", registry: Registry | None = None) -> Components:
@@ -55,17 +54,30 @@ def build_components(config: RunConfig, source: str = "<config>", registry: Regi
     sample = Sample(config.sample.length, config.sample.diameter, config.sample.density)
     model = named("model", config.model, "model", sample)
     _check_parameter_names(model, config.model.fixed, "model.fixed", source)
+    backend = named("backend", config.backend, "backend")
+    if config.excitation is None and backend.needs_excitation:
+        raise ConfigError(
+            f"{source}: excitation: required by backend '{config.backend.name}' (it plays the excitation); "
+            f"only a backend that reads the recorded input (file) can do without"
+        )
     return Components(
         config=config,
         source=source,
         registry=registry,
         sample=sample,
         model=model,
-        excitation=named("excitation", config.excitation, "excitation"),
-        backend=named("backend", config.backend, "backend"),
+        excitation=named("excitation", config.excitation, "excitation") if config.excitation else None,
+        backend=backend,
         compensator=named("compensator", config.compensator, "compensator"),
         solver=named("solver", config.solver, "solver"),
     )
+
+
+def require_excitation(c: Components, what: str) -> Excitation:
+    """The configured excitation, or a ConfigError saying that ``what`` needs one."""
+    if c.excitation is None:
+        raise ConfigError(f"{c.source}: excitation: {what} needs an excitation section (the designed input)")
+    return c.excitation
 
 
 def _check_parameter_names(model: MediumModel, mapping: dict, where: str, source: str) -> None:

@@ -130,7 +130,9 @@ class RunConfig(_Strict):
     title: str | None = None
     sample: SampleConfig
     model: ModelConfig
-    excitation: PluginRef
+    excitation: PluginRef | None = Field(
+        None, description="designed input; optional when the backend reads the recorded input (file backend)"
+    )
     backend: PluginRef
     compensator: CompensatorRef = Field(default_factory=CompensatorRef)
     solver: SolverRef = Field(default_factory=SolverRef)

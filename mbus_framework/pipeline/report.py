@@ -1,15 +1,12 @@
-"""Human-facing output of a run: the printed summary and the PNG figures."""
+"""Human-facing output of a run: the printed summary and the PNG figures (report.html is
+:mod:`~mbus_framework.pipeline.run_report`)."""
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 if TYPE_CHECKING:  # pragma: no cover
-    from mbus_framework.interfaces.excitation import Waveform
-    from mbus_framework.pipeline.components import Components
-    from mbus_framework.estimation.problem import FitProblem, FitResult
+    from mbus_framework.pipeline.figures import FitData
 
 
 def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
@@ -77,72 +74,16 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     return "\n".join(lines)
 
 
-def write_plots(
-    run_dir: Path, c: "Components", problem: "FitProblem", fit: "FitResult", waveform: "Waveform"
-) -> dict[str, str]:
-    """Fig. 3.9 (measured vs predicted), Fig. 3.7 (excitation spectrum), Fig. 3.8 (trace)."""
-    import matplotlib
+def write_figures(run_dir: Path, data: "FitData", dpi: int = 100) -> tuple[dict[str, str], dict[str, bytes]]:
+    """Draw every figure once, write each as a PNG in the run folder; returns the result.json
+    ``files`` entries (``<name>_plot``) and the PNG bytes (for report.html)."""
+    from mbus_framework.pipeline.figures import FIGURES, render_all
+    from mbus_framework.pipeline.storage import atomic_write_bytes
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files: dict[str, str] = {}
-    t_us = problem.t * 1e6
-    yhat = problem.y - fit.residuals
-
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax1.plot(t_us, problem.y, lw=0.7, color="0.55", label="measured")
-    ax1.plot(t_us, yhat, lw=0.9, color="C3", label="model")
-    ax1.set_ylabel("output force y [N]")
-    ax1.legend(loc="upper right")
-    ax1.set_title(f"{c.config.title or c.source}: measured vs predicted output")
-    ax2.plot(t_us, fit.residuals, lw=0.6, color="C0")
-    ax2.set_ylabel("residual [N]")
-    ax2.set_xlabel("time [us]")
-    fig.tight_layout()
-    fig.savefig(run_dir / "fit.png", dpi=110)
-    plt.close(fig)
-    files["fit_plot"] = "fit.png"
-
-    spec = c.excitation.spectrum()
-    fig, ax = plt.subplots(figsize=(7, 4))
-    keep = spec.f > 0
-    power_db = 10 * np.log10(np.maximum(spec.power[keep] / spec.power[keep].max(), 1e-12))
-    ax.semilogx(spec.f[keep] / 1e6, power_db, lw=0.7)
-    bw = spec.bandwidth_3db()
-    ax.axvline(bw / 1e6, ls="--", color="k", lw=0.8, label=f"-3 dB: {bw / 1e6:.3g} MHz")
-    ax.set_xlabel("frequency [MHz]")
-    ax.set_ylabel("relative power [dB]")
-    ax.set_ylim(-60, 5)
-    ax.legend()
-    ax.set_title(f"excitation spectrum ({c.config.excitation.name})")
-    fig.tight_layout()
-    fig.savefig(run_dir / "excitation.png", dpi=110)
-    plt.close(fig)
-    files["excitation_plot"] = "excitation.png"
-
-    if fit.trace:
-        names = fit.names
-        theta = np.array([rec["theta"] for rec in fit.trace])
-        cost = np.array([rec["cost"] for rec in fit.trace])
-        stages = [rec.get("stage", "") for rec in fit.trace]
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-        final = np.where(theta[-1] != 0, theta[-1], 1.0)
-        for i, n in enumerate(names):
-            ax1.plot(theta[:, i] / final[i], marker=".", label=n)
-        ax1.set_xlabel("iteration")
-        ax1.set_ylabel("parameter / final value")
-        ax1.legend()
-        ax2.semilogy(cost, marker=".")
-        for k in range(1, len(stages)):
-            if stages[k] != stages[k - 1]:
-                for ax in (ax1, ax2):
-                    ax.axvline(k - 0.5, color="0.8", lw=0.8)
-        ax2.set_xlabel("iteration")
-        ax2.set_ylabel("cost 1/2 sum r^2 (band stages: filtered)")
-        fig.suptitle("convergence of the winning start (Fig. 3.8); grey lines: continuation stages")
-        fig.tight_layout()
-        fig.savefig(run_dir / "convergence.png", dpi=110)
-        plt.close(fig)
-        files["convergence_plot"] = "convergence.png"
-    return files
+    pngs = render_all(data, dpi)
+    files = {}
+    for name, png in pngs.items():
+        filename = FIGURES[name][1]
+        atomic_write_bytes(Path(run_dir) / filename, png)
+        files[f"{name}_plot"] = filename
+    return files, pngs

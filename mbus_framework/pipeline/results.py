@@ -1,4 +1,4 @@
-"""The ``result.json`` document of a run (schema documented in the README)."""
+"""The ``result.json`` document of a run (schema documented in docs/results.md)."""
 from __future__ import annotations
 
 import datetime as _dt
@@ -24,7 +24,7 @@ def build_result(
     m: "Measurement",
     problem: "FitProblem",
     fit: "FitResult",
-    waveform: "Waveform",
+    waveform: "Waveform | None",
     compensation: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The result.json document; ``compensation`` is what the compensator reports."""
@@ -73,7 +73,8 @@ def build_result(
             "extras": fit.extras,
         },
         "strategy": fit.strategy,
-        "excitation": {"name": c.config.excitation.name, **waveform.info},
+        "excitation": {"name": c.config.excitation.name if c.config.excitation else "recorded",
+                       **(waveform.info if waveform is not None else {})},
         "files": {"measurement": "measurement.csv", "measurement_meta": "measurement.json"},
     }
     if fit.jacobian is not None and fit.free is not None and fit.free.any():

@@ -324,7 +324,7 @@ def run_comparison(
     from mbus_framework.engine.control_interop import write_bode_plot
     from mbus_framework.interfaces.registry import default_registry
     from mbus_framework.pipeline.config import load_config
-    from mbus_framework.pipeline.run import acquire, build_components, new_run_dir
+    from mbus_framework.pipeline.run import acquire, build_components, designed_waveform, new_run_dir
     from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text
 
     source = str(config_path)
@@ -345,7 +345,7 @@ def run_comparison(
             candidates.append(Candidate(name, c.model, initial, dict(config.model.fixed)))
         else:
             candidates.append(Candidate(name, build_candidate(registry, name, c.sample, config.model.options, source)))
-    waveform = c.excitation.waveform()
+    waveform = designed_waveform(c)
     run_dir = Path(out_dir) if out_dir else new_run_dir(config, source)
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))

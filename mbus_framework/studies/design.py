@@ -219,6 +219,7 @@ def default_candidates(c, proposal: PrbsProposal, band, fs: float, n: int, ampli
 def run_design(config_path, overrides=None, out_dir=None) -> str:
     """``mbus-run CONFIG --design-excitation``: print the ranking, write design.json and the spectra plot."""
     from mbus_framework.pipeline.config import validate_options, validate_structure
+    from mbus_framework.pipeline.components import require_excitation
     from mbus_framework.pipeline.run import build_components, new_run_dir
     from mbus_framework.pipeline.storage import atomic_write_json
 
@@ -226,7 +227,7 @@ def run_design(config_path, overrides=None, out_dir=None) -> str:
     data, d = _split_design(config_path, overrides)
     config = validate_structure(data, source)
     c = build_components(config, source)
-    ref = c.excitation.waveform()
+    ref = require_excitation(c, "--design-excitation").waveform()
     fs, n = ref.sample_rate, len(ref.u)
     amplitude = float(np.max(np.abs(ref.u)))
 

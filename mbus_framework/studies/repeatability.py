@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbus_framework.errors import ConfigError, EstimationError
+from mbus_framework.pipeline.components import require_excitation
 from mbus_framework.studies.common import (
     _base_components,
     _Context,
@@ -26,6 +27,7 @@ def repeatability_statistics(values: np.ndarray) -> dict[str, float]:
 def _repeatability(ctx: _Context):
     o: RepeatabilityOptions = ctx.options
     c = _base_components(ctx)
+    require_excitation(c, "study repeatability")
     can_shift, can_seed = _has_option(c.excitation, "shift"), _has_option(c.backend, "seed")
     vary = o.vary
     if vary == "auto":

@@ -99,6 +99,7 @@ def run_calibration(config_path, overrides=None, out_dir=None, progress=None) ->
     from mbus_framework.interfaces.backend import AcquisitionContext
     from mbus_framework.interfaces.sample import Sample
     from mbus_framework.pipeline.config import load_config
+    from mbus_framework.pipeline.components import require_excitation
     from mbus_framework.pipeline.run import build_components, new_run_dir
     from mbus_framework.pipeline.storage import (
         atomic_write_json,
@@ -114,7 +115,7 @@ def run_calibration(config_path, overrides=None, out_dir=None, progress=None) ->
         raise ConfigError(
             f"{source}: calibration: the simulated rig needs backend.options.wave (a reference propagation path)"
         )
-    waveform = c.excitation.waveform()
+    waveform = require_excitation(c, "a calibration run").waveform()
     period = _period_samples(waveform.info, len(waveform.u), opts.analysis, source)
     run_dir = Path(out_dir) if out_dir else new_run_dir(config, source)
     run_dir.mkdir(parents=True, exist_ok=True)

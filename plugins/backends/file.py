@@ -9,7 +9,8 @@ Formats (``format: auto`` picks by what ``path`` is):
   ``Sampling Period``, then raw codes or ``time,value`` rows; see
   :mod:`plugins.instruments.gds_csv`): ``path`` is the excitation channel's file and
   ``response_path`` the response channel's; the excitation channel is aligned with the designed
-  excitation of the config and both are cut at the burst start (``processing``);
+  excitation of the config and both are cut at the burst start (``processing``); without an
+  excitation in the config the burst start is where the excitation channel leaves its rest;
 * a run directory (or its ``shots/`` folder) written by the ``lab`` backend: every saved
   shot is re-processed with the processing options saved with it (or ``processing``), so a
   run can be re-fitted without the instruments, also after an acquisition that failed
@@ -28,7 +29,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
+from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement, check_record
 from mbus_framework.errors import DataError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 
@@ -36,8 +37,6 @@ from plugins.instruments.gds_csv import read_gds_csv
 from plugins.instruments.shots import ProcessingOptions, Reference, Shot, combine, load_run, rescale
 
 REQUIRED = ("t", "u", "y")
-MIN_SAMPLES = 16
-STEP_TOLERANCE = 1e-6
 
 
 GDS_HEADER_KEYS = ("memory length", "sampling period", "vertical scale", "source", "firmwave", "format")
@@ -103,29 +102,6 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
         raise DataError(f"{path}: not a readable .npz file ({type(exc).__name__})") from None
 
 
-def check_record(path, t, u, y) -> Measurement:
-    """Validate lengths, finiteness and a uniform time step; return the measurement."""
-    t, u, y = (np.asarray(a, dtype=float).ravel() for a in (t, u, y))
-    if not (len(t) == len(u) == len(y)):
-        raise DataError(f"{path}: length mismatch (t {len(t)}, u {len(u)}, y {len(y)} samples)")
-    if len(t) < MIN_SAMPLES:
-        raise DataError(f"{path}: only {len(t)} samples; need at least {MIN_SAMPLES}")
-    for name, a in (("t", t), ("u", u), ("y", y)):
-        bad = np.flatnonzero(~np.isfinite(a))
-        if bad.size:
-            raise DataError(f"{path}: column {name} has {bad.size} non-finite or non-numeric value(s) (first at row {bad[0] + 1})")
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    if dt <= 0:
-        raise DataError(f"{path}: time column t is not increasing")
-    worst = int(np.argmax(np.abs(steps - dt)))
-    if abs(steps[worst] - dt) > STEP_TOLERANCE * dt:
-        raise DataError(
-            f"{path}: non-uniform time step (step {steps[worst]:.6g} s at row {worst + 2}, median {dt:.6g} s)"
-        )
-    return Measurement(t - t[0], u, y, meta={"source": str(path)})
-
-
 def sniff_format(path: Path) -> str:
     """'lab_run' for a folder, 'gds_csv' for a CSV with GDS-2000 header rows, else 'tuy'."""
     if path.is_dir():
@@ -179,7 +155,7 @@ def read_lab_run(path: Path, context_reference: Reference | None, processing: Pr
     t, u, y, meta = combine(shots, reference, processing, str(run.shot_dir))
     m = check_record(run.shot_dir, t, u, y)
     status = run.acquisition.get("status", "unknown")
-    warnings = []
+    warnings = list(meta.pop("warnings", []))
     if status != "complete":
         warnings.append(f"acquisition {status}: {len(shots)} of {run.acquisition.get('shots_requested', '?')} "
                         f"shots saved ({run.acquisition.get('error') or 'no error recorded'})")
@@ -194,6 +170,7 @@ class FileBackend(Backend):
 
     Options = FileOptions
     summary = "recorded t,u,y (.csv/.npz), GDS-2000 CSV exports, or a lab run directory"
+    needs_excitation = False  # the record holds the input
 
     def acquire(self, context: AcquisitionContext) -> Measurement:
         o = self.options

@@ -17,7 +17,9 @@ Processing (:func:`combine`) turns shots into one ``t, u, y`` record: each shot'
 channel is aligned with the reference (the waveform the generator actually played) by
 cross-correlation; both channels are cut from the burst start (minus nothing: t = 0 is the first
 sample of the burst), optionally baseline-corrected with the pre-burst samples, averaged over
-shots and scaled by the gains.
+shots and scaled by the gains. Without a reference (no designed excitation anywhere), the burst
+start is where the excitation channel leaves its pre-burst rest (:func:`burst_start`) and the
+record is kept to its end.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import signal
 
+from mbus_framework.engine.physics import onset_index
 from mbus_framework.errors import DataError
 from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_npz, to_jsonable
 
@@ -234,6 +237,46 @@ def find_lag(recorded: np.ndarray, reference: np.ndarray) -> tuple[int, float, f
     return int(lags[best]), float(rho[best]), float(rho.min())
 
 
+def burst_start(u: np.ndarray, where: str) -> int:
+    """First sample of the burst on an excitation channel, found without the designed waveform.
+
+    The onset is the first sample deviating from the first sample's level by more than 10 % of
+    the largest deviation; it is then moved back while the samples before it still stand out of
+    the pre-burst noise (3 robust standard deviations, 1.4826 x MAD, of the samples before the
+    onset), so a slowly rising burst keeps its start. A record whose first sample is not at the
+    rest level (further than a quarter of the half-range from the channel's mid-range: a record
+    that starts inside the burst) starts at 0.
+    """
+    u = np.asarray(u, dtype=float)
+    i = onset_index(u - u[0], 0.1)
+    if i is None:
+        raise DataError(f"{where}: the excitation channel is flat (no burst recorded)")
+    mid, half = (u.max() + u.min()) / 2, (u.max() - u.min()) / 2
+    if abs(u[0] - mid) > 0.25 * half:  # the first sample is at a burst level, not at rest
+        return 0
+    pre = u[:i]
+    base = float(np.median(pre)) if pre.size else float(u[0])
+    noise = 1.4826 * float(np.median(np.abs(pre - base))) if pre.size >= 8 else 0.0
+    while i > 0 and abs(u[i - 1] - base) > 3.0 * noise:
+        i -= 1
+    return int(i)
+
+
+def cut_at(shots: list[Shot], starts: list[int], n: int, remove_baseline: bool,
+           source: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Both channels of each shot from its burst start, ``n`` samples, minus the pre-burst mean
+    (when asked and at least 8 samples precede the burst)."""
+    if n < MIN_SAMPLES:
+        raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
+    cuts = []
+    for s, i in zip(shots, starts):
+        u, y = s.u.astype(float), s.y.astype(float)
+        if remove_baseline and i >= 8:
+            u, y = u - u[:i].mean(), y - y[:i].mean()
+        cuts.append((u[i:i + n], y[i:i + n]))
+    return cuts
+
+
 def combine(shots: list[Shot], reference: Reference | None, options: ProcessingOptions,
             source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Align, cut, baseline-correct, average and scale shots; returns t [s], u, y and meta."""
@@ -248,7 +291,6 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
     meta: dict[str, Any] = {"shots_averaged": len(shots), "dt_s": dt, "input": options.input,
                             "u_gain": options.u_gain, "y_gain": options.y_gain}
     ref = reference.on_grid(dt) if reference is not None else None
-    cuts = []
     if align.enabled and ref is not None:
         if ref.size < MIN_SAMPLES:
             raise DataError(f"{source}: the excitation covers only {ref.size} scope samples of {dt:.3g} s")
@@ -268,15 +310,17 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
             rhos.append(rho)
         available = min(s.u.size - lag for s, lag in zip(shots, lags))
         n = min(ref.size, available) if align.window == "excitation" else available
-        if n < MIN_SAMPLES:
-            raise DataError(f"{source}: only {n} samples after the burst start; widen the timebase")
-        for s, lag in zip(shots, lags):
-            u, y = s.u.astype(float), s.y.astype(float)
-            if align.remove_baseline and lag >= 8:
-                u, y = u - u[:lag].mean(), y - y[:lag].mean()
-            cuts.append((u[lag:lag + n], y[lag:lag + n]))
+        cuts = cut_at(shots, lags, n, align.remove_baseline, source)
         meta.update(lags_samples=lags, correlations=[round(r, 4) for r in rhos], window=align.window,
                     excitation_samples_on_grid=int(ref.size), truncated=bool(n < ref.size))
+    elif align.enabled:  # no designed waveform: the burst starts where the excitation channel leaves its rest
+        starts = [burst_start(s.u, f"{source}: shot {k}") for k, s in enumerate(shots, start=1)]
+        n = min(s.u.size - i for s, i in zip(shots, starts))
+        cuts = cut_at(shots, starts, n, align.remove_baseline, source)
+        meta.update(aligned="burst onset (no designed excitation)", burst_starts_samples=starts, window="record")
+        if 0 in starts:
+            meta["warnings"] = [f"{source}: the excitation channel is not at rest at the start of the record "
+                                f"(the burst began before it): fitted from the first sample, as if at rest"]
     else:
         n = shots[0].u.size
         cuts = [(s.u.astype(float), s.y.astype(float)) for s in shots]
@@ -285,7 +329,8 @@ def combine(shots: list[Shot], reference: Reference | None, options: ProcessingO
     y = np.mean([c[1] for c in cuts], axis=0)
     if options.input == "designed":
         if ref is None:
-            raise DataError(f"{source}: input 'designed' needs the designed excitation")
+            raise DataError(f"{source}: processing.input 'designed' needs the designed excitation "
+                            f"(an excitation section in the config)")
         r = ref[:n] if ref.size >= n else np.concatenate([ref, np.zeros(n - ref.size)])
         r = r / float(np.max(np.abs(ref)))
         gain = float(np.dot(u, r) / np.dot(r, r))

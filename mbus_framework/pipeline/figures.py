@@ -1,0 +1,273 @@
+"""The figures of a run, drawn from the fitted record and the model's prediction.
+
+Each function takes a :class:`FitData` and returns a matplotlib ``Figure`` on an Agg canvas
+(no pyplot state, so runs in a loop leak nothing); pass ``fig`` to draw into a figure of your
+own (e.g. one made by ``matplotlib.pyplot.figure()`` in a notebook).
+
+* :func:`fit_figure`: measured vs predicted output and the residual (Fig. 3.9);
+* :func:`correlation_figure`: residual autocorrelation and input-residual cross-correlation with
+  their confidence band, as MATLAB's ``resid`` shows them;
+* :func:`frequency_response_figure`: measured vs model frequency response (H1 estimates);
+* :func:`excitation_figure`: power spectrum of the fitted input, and of the design (Fig. 3.7);
+* :func:`convergence_figure`: parameters and cost per iteration of the winning start (Fig. 3.8).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import stats
+
+from mbus_framework.engine.control_interop import transfer_function_estimate
+from mbus_framework.interfaces.excitation import Waveform, power_spectrum
+from mbus_framework.pipeline.recorded_input import welch_spectrum
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from mbus_framework.estimation.problem import FitProblem, FitResult
+
+#: Lags shown in the correlation plots (MATLAB's ``resid`` default).
+LAGS = 25
+#: Level of the correlation confidence band (MATLAB's ``resid`` default: 99 %).
+LEVEL = 0.99
+
+
+@dataclass
+class FitData:
+    """The arrays behind a run's figures: times t [s], fitted input u and output y (after any
+    compensation), the model's prediction yhat, the parameter names and the convergence trace,
+    and the designed excitation when the config had one."""
+
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    yhat: np.ndarray
+    names: list[str] = field(default_factory=list)
+    trace: list[dict[str, Any]] = field(default_factory=list)
+    designed: Waveform | None = None
+    title: str = ""
+
+    @property
+    def residuals(self) -> np.ndarray:
+        return self.y - self.yhat
+
+    @property
+    def dt(self) -> float:
+        return float(self.t[1] - self.t[0])
+
+    @classmethod
+    def from_fit(cls, problem: "FitProblem", fit: "FitResult", designed: Waveform | None = None,
+                 title: str = "") -> "FitData":
+        return cls(problem.t, problem.u, problem.y, problem.y - fit.residuals, list(fit.names),
+                   list(fit.trace), designed, title)
+
+
+def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised cross-correlation r_ab(k) = sum_t a_t b_(t+k) / sqrt(sum a^2 sum b^2) of the
+    mean-removed signals, for k = -lags..lags (the biased estimator of ``statsmodels`` ``acf``
+    and MATLAB ``resid``). Returns (k, r)."""
+    a = np.asarray(a, float) - np.mean(a)
+    b = np.asarray(b, float) - np.mean(b)
+    n = a.size
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    full = np.fft.irfft(np.conj(np.fft.rfft(a, size)) * np.fft.rfft(b, size), size)
+    k = np.arange(-lags, lags + 1)
+    denom = float(np.sqrt((a @ a) * (b @ b)))
+    r = full[k % size] / denom if denom > 0 else np.zeros(k.size)
+    return k, r
+
+
+def confidence_bound(n: int, level: float = LEVEL) -> float:
+    """Half-width z / sqrt(N) of the band a white residual's correlations stay inside with
+    probability ``level`` at each lag (z the standard normal quantile)."""
+    return float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(n))
+
+
+def _new(fig: "Figure | None", size: tuple[float, float]) -> "Figure":
+    if fig is not None:
+        return fig
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _margins(fig: "Figure", **kw: float) -> None:
+    """Fixed margins: ``tight_layout`` costs more than drawing the figure (log-axis ticks)."""
+    fig.subplots_adjust(**{"left": 0.09, "right": 0.98, "top": 0.93, "bottom": 0.1, "hspace": 0.35, **kw})
+
+
+def fit_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
+    """Measured vs predicted output, and the residual (Fig. 3.9)."""
+    fig = _new(fig, (9, 6))
+    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    t_us = d.t * 1e6
+    ax1.plot(t_us, d.y, lw=0.7, color="0.55", label="measured")
+    ax1.plot(t_us, d.yhat, lw=0.9, color="C3", label="model")
+    ax1.set_ylabel("output y")
+    ax1.legend(loc="upper right")
+    ax1.set_title(f"{d.title}: measured vs predicted output" if d.title else "measured vs predicted output")
+    ax2.plot(t_us, d.residuals, lw=0.6, color="C0")
+    ax2.set_ylabel("residual")
+    ax2.set_xlabel("time [us]")
+    _margins(fig, hspace=0.08)
+    return fig
+
+
+def correlation_figure(d: FitData, fig: "Figure | None" = None, lags: int = LAGS, level: float = LEVEL) -> "Figure":
+    """Residual autocorrelation (lags 0..``lags``) and input-residual cross-correlation
+    (-``lags``..``lags``) with the ``level`` band +-z/sqrt(N): bars outside it mean the residual
+    is not white or still depends on the input (MATLAB ``resid``)."""
+    fig = _new(fig, (9, 5.5))
+    ax1, ax2 = fig.subplots(2, 1)
+    e = d.residuals
+    bound = confidence_bound(e.size, level)
+    k, r = correlation(e, e, lags)
+    keep = k >= 1  # r(0) = 1 by definition; leaving it out keeps the band readable
+    ax1.vlines(k[keep], 0, r[keep], color="C0")
+    ax1.plot(k[keep], r[keep], "o", ms=3, color="C0")
+    ku, ru = correlation(d.u, e, lags)
+    ax2.vlines(ku, 0, ru, color="C2")
+    ax2.plot(ku, ru, "o", ms=3, color="C2")
+    for ax, lo, vals in ((ax1, 1, r[keep]), (ax2, -lags, ru)):
+        ax.axhspan(-bound, bound, color="C1", alpha=0.18, lw=0, label=f"{100 * level:g} % band, white residual")
+        ax.axhline(0, color="0.3", lw=0.6)
+        ax.set_xlim(lo - 0.5, lags + 0.5)
+        top = 1.25 * max(2 * bound, float(np.max(np.abs(vals))) if vals.size else 0.0)
+        ax.set_ylim(-top, top)
+    ax1.set_title("autocorrelation of the residual (lags 1-%d; r(0) = 1)" % lags)
+    ax1.set_ylabel("r_ee(k)")
+    ax1.legend(loc="upper right", fontsize=8)
+    ax2.set_title("cross-correlation of input and residual")
+    ax2.set_ylabel("r_ue(k)")
+    ax2.set_xlabel("lag k [samples]")
+    _margins(fig, hspace=0.45)
+    return fig
+
+
+def frequency_response_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
+    """Measured vs model frequency response: H1 = P_uy / P_uu of the record and of the model's
+    prediction, by the same estimator (Welch, a quarter of the record per segment), so both carry
+    the same windowing; measured points with coherence below 0.5 are faded. Shown up to twice the
+    frequency where the model's response falls 60 dB below its peak."""
+    fig = _new(fig, (9, 6))
+    ax_m, ax_p = fig.subplots(2, 1, sharex=True)
+    meas = transfer_function_estimate(d.u, d.y, d.dt)
+    model = transfer_function_estimate(d.u, d.yhat, d.dt)
+    mag = np.abs(model.H)
+    if np.any(mag > 0):  # up to twice where the model falls 60 dB below its peak: beyond, only noise
+        shown = meas.f <= 2 * meas.f[np.flatnonzero(mag >= 1e-3 * mag.max())[-1]]
+        meas = type(meas)(meas.f[shown], meas.H[shown], meas.coherence[shown])
+        model = type(model)(model.f[shown], model.H[shown], model.coherence[shown])
+    good = meas.coherence >= 0.5
+    f_mhz = meas.f / 1e6
+    phase_m = np.degrees(np.unwrap(np.angle(meas.H)))
+    phase_p = np.degrees(np.unwrap(np.angle(model.H)))
+    with np.errstate(divide="ignore"):
+        mag_m, mag_p = 20 * np.log10(np.abs(meas.H)), 20 * np.log10(np.abs(model.H))
+    for mask, alpha, label in ((good, 0.9, "measured (H1 estimate)"), (~good, 0.25, "measured, coherence < 0.5")):
+        if np.any(mask):
+            ax_m.semilogx(f_mhz[mask], mag_m[mask], ".", ms=3, color="0.35", alpha=alpha, label=label)
+            ax_p.semilogx(f_mhz[mask], phase_m[mask], ".", ms=3, color="0.35", alpha=alpha)
+    ax_m.semilogx(f_mhz, mag_p, lw=1.3, color="C3", label="model")
+    ax_p.semilogx(f_mhz, phase_p, lw=1.3, color="C3")
+    if np.any(good):
+        top = float(np.nanmax(mag_m[good]))
+        ax_m.set_ylim(top - 80, top + 10)
+    ax_m.set_ylabel("|H| [dB]")
+    ax_p.set_ylabel("phase [deg]")
+    ax_p.set_xlabel("frequency [MHz]")
+    for ax in (ax_m, ax_p):
+        ax.grid(True, alpha=0.3)
+    ax_m.legend(loc="lower left", fontsize=8)
+    ax_m.set_title("frequency response: output per input")
+    _margins(fig, hspace=0.08)
+    return fig
+
+
+def excitation_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
+    """Power spectrum of the fitted input (Welch) and, with a design, the designed excitation's
+    periodogram (Fig. 3.7), each relative to its peak; the input's -3 dB band is marked."""
+    fig = _new(fig, (8, 4.2))
+    ax = fig.subplots()
+
+    def db(p: np.ndarray) -> np.ndarray:
+        return 10 * np.log10(np.maximum(p / p.max(), 1e-12)) if p.max() > 0 else np.full(p.size, -120.0)
+
+    if d.designed is not None:
+        spec = power_spectrum(d.designed.u, d.designed.dt)
+        keep = spec.f > 0
+        ax.semilogx(spec.f[keep] / 1e6, db(spec.power[keep]), lw=0.6, color="0.6", label="designed (periodogram)")
+    rec = welch_spectrum(d.u, d.dt)
+    keep = rec.f > 0
+    ax.semilogx(rec.f[keep] / 1e6, db(rec.power[keep]), lw=1.2, color="C0", label="fitted input (Welch)")
+    lo, hi = rec.band_3db()
+    ax.axvspan(max(lo, rec.f[keep][0]) / 1e6, hi / 1e6, color="C0", alpha=0.08,
+               label=f"-3 dB band {lo / 1e6:.3g}-{hi / 1e6:.3g} MHz")
+    ax.set_xlabel("frequency [MHz]")
+    ax.set_ylabel("relative power [dB]")
+    ax.set_ylim(-60, 5)
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_title("excitation spectrum")
+    _margins(fig, top=0.91, bottom=0.12)
+    return fig
+
+
+def convergence_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
+    """Parameters (relative to their final values) and cost per iteration of the winning start
+    (Fig. 3.8); grey lines separate the continuation stages."""
+    fig = _new(fig, (11, 4))
+    ax1, ax2 = fig.subplots(1, 2)
+    if not d.trace:
+        ax1.text(0.5, 0.5, "no trace recorded", ha="center", transform=ax1.transAxes)
+        return fig
+    theta = np.array([rec["theta"] for rec in d.trace], dtype=float)
+    cost = np.array([rec["cost"] for rec in d.trace], dtype=float)
+    stages = [rec.get("stage", "") for rec in d.trace]
+    final = np.where(theta[-1] != 0, theta[-1], 1.0)
+    for i, n in enumerate(d.names[: theta.shape[1]]):
+        ax1.plot(theta[:, i] / final[i], marker=".", label=n)
+    ax1.set_xlabel("iteration")
+    ax1.set_ylabel("parameter / final value")
+    ax1.legend(fontsize=8)
+    ax2.semilogy(cost, marker=".")
+    for k in range(1, len(stages)):
+        if stages[k] != stages[k - 1]:
+            for ax in (ax1, ax2):
+                ax.axvline(k - 0.5, color="0.8", lw=0.8)
+    ax2.set_xlabel("iteration")
+    ax2.set_ylabel("cost 1/2 sum r^2 (band stages: filtered)")
+    fig.suptitle("convergence of the winning start (Fig. 3.8); grey lines: continuation stages")
+    _margins(fig, left=0.07, top=0.88, bottom=0.13, wspace=0.28)
+    return fig
+
+
+#: Figure name -> (builder, file name, caption). The run folder's PNGs and report.html use these.
+FIGURES = {
+    "fit": (fit_figure, "fit.png", "Measured and predicted output, and the residual (Fig. 3.9)."),
+    "correlation": (correlation_figure, "residual_correlation.png",
+                    "Residual autocorrelation and input-residual cross-correlation; the shaded band is where "
+                    "99 % of the correlations of a white residual independent of the input fall."),
+    "frequency_response": (frequency_response_figure, "frequency_response.png",
+                           "Measured and model frequency response (H1 estimates from the record and from the "
+                           "model's prediction); faded points have coherence below 0.5."),
+    "excitation": (excitation_figure, "excitation.png", "Power spectrum of the fitted input (and of the design)."),
+    "convergence": (convergence_figure, "convergence.png",
+                    "Parameters and cost per iteration of the winning start (Fig. 3.8)."),
+}
+
+
+def render_all(d: FitData, dpi: int = 100) -> dict[str, bytes]:
+    """PNG bytes of every figure that applies (no convergence plot without a trace)."""
+    from mbus_framework.pipeline.html import png_bytes
+
+    out = {}
+    for name, (build, _file, _caption) in FIGURES.items():
+        if name == "convergence" and not d.trace:
+            continue
+        out[name] = png_bytes(build(d), dpi)
+    return out

@@ -1,0 +1,172 @@
+"""The virtual potatoes campaign (configs/campaigns/potatoes.yaml) and its calibration (Ch. 6)."""
+from __future__ import annotations
+
+import filecmp
+import importlib.util
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from fakes.campaign_tables import PROPS, schema_table
+from mbus_framework.analysis.cli import main
+from mbus_framework.analysis.regression import fit_line
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMPAIGN = ROOT / "configs" / "campaigns" / "potatoes.yaml"
+FOLDER = ROOT / "configs" / "campaigns" / "potatoes"
+
+
+def _generator():
+    spec = importlib.util.spec_from_file_location("make_potatoes", FOLDER / "make_potatoes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name", ["potatoes.yaml", "potatoes_uncompensated.yaml"])
+def test_every_sample_config_validates(name):
+    from mbus_framework.pipeline.components import build_components
+    from mbus_framework.pipeline.config import apply_overrides, read_yaml, validate_structure
+
+    path = CAMPAIGN.parent / name
+    campaign = read_yaml(path)["campaign"]
+    base = read_yaml(path.parent / campaign["base"]) if "base" in campaign else campaign["run"]
+    assert ("base" in campaign) != ("run" in campaign)
+    sheet = pd.read_csv(path.parent / campaign["samples"])
+    assert len(sheet) == 30 and sheet.sample_id.is_unique
+    keys = [c for c in sheet.columns if "." in c]
+    assert set(sheet.columns) == {"sample_id", *keys, *campaign["groups"], *campaign["covariates"]}
+    for _, row in sheet.iterrows():
+        data = apply_overrides(base, [f"{k}={row[k]}" for k in keys], where=f"{row.sample_id}")
+        source = f"{path}: {row.sample_id}"
+        components = build_components(validate_structure(data, source), source)
+        truth = components.backend.options.truth
+        assert {p: truth[p] for p in PROPS} == {p: row[f"backend.options.truth.{p}"] for p in PROPS}
+        assert all(truth[p] > 0 for p in PROPS)
+
+
+def test_generator_reproduces_the_shipped_files(tmp_path):
+    gen = _generator()
+    gen.write_campaign(tmp_path)
+    for name in ("samples.csv", "conventional.csv"):
+        assert filecmp.cmp(tmp_path / name, FOLDER / name, shallow=False), name
+    shipped = sorted(p.name for p in (FOLDER / "records").iterdir())
+    assert shipped == sorted(p.name for p in (tmp_path / "records").iterdir()) and len(shipped) == 120
+    _, mismatch, errors = filecmp.cmpfiles(FOLDER / "records", tmp_path / "records", shipped, shallow=False)
+    assert mismatch == [] and errors == []
+
+
+def test_truth_spans_the_documented_range():
+    gen = _generator()
+    sheet = pd.read_csv(FOLDER / "samples.csv")
+    table_6_2_after = {"E_sigma": (4.84e9, 7.41e10), "eta_sigma": (4.87e2, 3.83e4), "E_tau": (1.30e9, 2.26e10),
+                       "eta_tau": (3e3, 2.6e4)}  # eta_tau capped where the shear parameters stay identifiable
+    for prop, (lo, hi) in table_6_2_after.items():
+        truth = sheet[f"backend.options.truth.{prop}"]
+        assert lo <= truth.min() and truth.max() <= hi, prop
+        a, b, _, x_lo, x_hi = gen.RELATION[prop]
+        x = sheet[f"true_conv_{prop}"]
+        assert x_lo <= x.min() and x.max() <= x_hi
+
+
+def _mbus_table(rel_se=0.002, seed=0):
+    """MBUS estimates of the shipped slices: their truth with a 0.2 % estimation error (as measured
+    by mbus-run on the 30 configs: all four properties within 0.25 %)."""
+    sheet = pd.read_csv(FOLDER / "samples.csv")
+    rng = np.random.default_rng(seed)
+    truth = {p: sheet[f"backend.options.truth.{p}"].to_numpy() for p in PROPS}
+    estimates = {p: v * (1 + rel_se * rng.standard_normal(v.size)) for p, v in truth.items()}
+    return schema_table(sheet.sample_id, estimates, truth, rel_se, length=0.03)
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("potatoes")
+    _mbus_table().to_csv(out / "properties.csv", index=False)
+    assert main(["calibrate", str(out / "properties.csv"), "--conventional", str(FOLDER / "conventional.csv"),
+                 "--no-plots"]) == 0
+    return out
+
+
+def test_calibration_recovers_the_known_relation(calibrated):
+    """The true slopes and intercepts of make_potatoes.RELATION lie in the 95 % intervals."""
+    gen = _generator()
+    reg = pd.read_csv(calibrated / "calibration" / "regression.csv").set_index("property")
+    assert list(reg.index) == list(PROPS) and (reg.n == 30).all()
+    for prop, (intercept, slope, *_rest) in gen.RELATION.items():
+        row = reg.loc[prop]
+        assert row.slope_ci_low <= slope <= row.slope_ci_high, prop
+        assert row.intercept_ci_low <= intercept <= row.intercept_ci_high, prop
+        assert row.r_p < 0.01
+
+
+def test_numbers_agree_with_statsmodels_and_scipy_run_directly(calibrated):
+    import statsmodels.api as sm
+    from scipy import stats
+
+    out = calibrated / "calibration"
+    conv = pd.read_csv(out / "conventional_samples.csv", dtype={"sample_id": str})
+    mbus = pd.read_csv(calibrated / "properties.csv", dtype={"sample_id": str})
+    data = mbus.merge(conv, on="sample_id")
+    reg = pd.read_csv(out / "regression.csv").set_index("property")
+    for prop in PROPS:
+        x, y = data[f"conv_{prop}"], data[prop]
+        ols = sm.OLS(y, sm.add_constant(x)).fit()
+        lin = stats.linregress(x, y)
+        row = reg.loc[prop]
+        assert row.slope == pytest.approx(lin.slope, rel=1e-10)
+        assert row.intercept == pytest.approx(lin.intercept, rel=1e-9)
+        assert row.r == pytest.approx(lin.rvalue, rel=1e-10)
+        assert row.slope_se == pytest.approx(ols.bse.iloc[1], rel=1e-10)
+        assert row.intercept_p == pytest.approx(ols.pvalues.iloc[0], rel=1e-8)
+        assert (row.slope_ci_low, row.slope_ci_high) == pytest.approx(tuple(ols.conf_int().iloc[1]), rel=1e-10)
+    t62 = pd.read_csv(out / "table_6_2.csv", index_col=[0, 1])
+    assert t62.loc[("Conventionally measured", "Mean"), "E_tau"] == pytest.approx(conv.conv_E_tau.mean(), rel=1e-4)
+
+
+def test_conventional_values_measure_the_generator_truth(calibrated):
+    conv = pd.read_csv(calibrated / "calibration" / "conventional_samples.csv", dtype={"sample_id": str})
+    sheet = pd.read_csv(FOLDER / "samples.csv", dtype={"sample_id": str})
+    data = conv.merge(sheet, on="sample_id")
+    assert len(data) == 30 and (data.conv_E_tau_n == 3).all() and (data.conv_E_sigma_n == 1).all()
+    for prop, tol in (("E_sigma", 0.002), ("eta_sigma", 0.02), ("E_tau", 0.06), ("eta_tau", 0.06)):
+        rel = data[f"conv_{prop}"] / data[f"true_conv_{prop}"] - 1
+        assert rel.abs().max() < tol, prop  # compression: fit noise; rheometer: 2 % specimen SD over 3
+
+
+def test_relation_is_recovered_95_percent_of_the_time_over_new_draws():
+    """The generator's design (noise in MBUS, 1-2 % noise in the conventional values) gives
+    95 % intervals that cover the true slope 95 % of the time."""
+    gen = _generator()
+    rng = np.random.default_rng(1)
+    trials, hits = 150, {p: 0 for p in PROPS}
+    for seed in range(trials):
+        draw = gen.draw_samples(seed=seed)
+        for prop, (_, slope, *_rest) in gen.RELATION.items():
+            x = draw[f"true_conv_{prop}"] * (1 + 0.015 * rng.standard_normal(len(draw)))
+            fit = fit_line(x, draw[prop] * (1 + 0.002 * rng.standard_normal(len(draw))))
+            hits[prop] += fit.slope_ci_low <= slope <= fit.slope_ci_high
+    for prop, n in hits.items():
+        assert 0.89 <= n / trials <= 0.995, (prop, n)
+
+
+@pytest.mark.slow
+def test_campaign_run_recovers_the_relation(tmp_path):
+    """End to end once the campaign runner exists: mbus-run the campaign, then calibrate."""
+    pytest.importorskip("mbus_framework.campaigns")
+    run = subprocess.run([sys.executable, "-m", "mbus_framework.cli", str(CAMPAIGN), "-o", str(tmp_path / "c"),
+                          "--no-plots", "-q"], capture_output=True, text=True, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    table = next((tmp_path / "c").rglob("properties.csv"))
+    assert main(["calibrate", str(table), "--conventional", str(FOLDER / "conventional.csv"), "--no-plots",
+                 "--out", str(tmp_path / "cal")]) == 0
+    reg = pd.read_csv(tmp_path / "cal" / "regression.csv").set_index("property")
+    for prop, (intercept, slope, *_rest) in _generator().RELATION.items():
+        assert reg.loc[prop, "slope_ci_low"] <= slope <= reg.loc[prop, "slope_ci_high"], prop
+        assert reg.loc[prop, "intercept_ci_low"] <= intercept <= reg.loc[prop, "intercept_ci_high"], prop
+    shutil.rmtree(tmp_path / "c", ignore_errors=True)
