@@ -209,9 +209,10 @@ def test_search_accepts_the_first_start_whose_residual_is_noise():
     final, report, nfev, njev = search(problem, local, StrategyOptions(bands=[0.2, 0.5]))
     assert report.accepted and report.accepted_because.startswith("residual consistent with noise")
     assert len(report.starts) == 1 and report.winner == 0
-    # one start fitted in the frequency domain: a full-precision full-band fit, then the refinement
+    # the user's start as given: one full-band stage, then the full-precision refinement
+    assert report.starts[0]["origin"] == "config (as given)"
     assert [c is None for c, _, _ in local.calls] == [True, True]
-    assert [f for _, _, f in local.calls] == [True, True]
+    assert [f for _, _, f in local.calls] == [False, True]
     np.testing.assert_array_equal(final.theta, truth)
     assert report.noise["out_of_band_std"] > 0 and report.box["lower"]["k_sigma"] > 0
 

@@ -330,7 +330,7 @@ class _SpectralFit:
         key = tuple(th[: self.problem.n_model])
         if self._basis_at is None or self._basis_at[0] != key:
             B = tail_basis(self.problem.model, th[: self.problem.n_model], lines.f, self.problem.dt,
-                           self.problem.y.size) * lines.output_response[:, None]
+                           lines.tail_shift) * lines.output_response[:, None]
             B = np.vstack([B.real, B.imag])
             Q = None
             if np.all(np.isfinite(B)) and B.size:

@@ -210,10 +210,15 @@ class FitResult:
 
 
 class Solver(ABC):
-    """Base class of solver plugins; ``options`` is an instance of ``Options``."""
+    """Base class of solver plugins; ``options`` is an instance of ``Options``.
+
+    ``periodic_records``: the solver needs a periodic record (an input repeating with an
+    integer number of samples per period, at least two periods); the contract suites then
+    give it one."""
 
     Options: ClassVar[type[BaseModel]] = NoOptions
     summary: ClassVar[str] = ""
+    periodic_records: ClassVar[bool] = False
 
     def __init__(self, options: BaseModel):
         self.options = options

@@ -74,9 +74,11 @@ class FitLines:
     """The frequencies a local frequency-domain fit uses, with Y and the effective input X.
 
     ``dt`` set: the model response is the ZOH-sampled H(z) (exact); None: the continuous G
-    times the hold response, which ``X`` then includes. ``transient``: the record's
-    unfinished tail must be projected out (a record from rest); False for the steady lines of
-    a periodic record. ``output_response``: the output filter's response at ``f``."""
+    times the hold response, which ``X`` then includes. ``transient``: free responses of the
+    model must be projected out: the unfinished tail of a record from rest (``tail_shift`` =
+    N, its length) or, on the lines of a periodic record, what is left of the start from rest
+    in periods that are not yet steady (``tail_shift`` = 0). ``output_response``: the output
+    filter's response at ``f``."""
 
     f: np.ndarray
     Y: np.ndarray
@@ -84,6 +86,7 @@ class FitLines:
     dt: float | None
     transient: bool
     output_response: np.ndarray
+    tail_shift: int = 0
 
     @property
     def energy(self) -> float:
@@ -135,7 +138,7 @@ def record_spectrum(problem, step: float = DEFAULT_STEP, max_lines: int = 400) -
     U, Y = dtft(problem.u, f, dt), dtft(problem.y, f, dt)
     hold = hold_response(f, dt, problem.hold)
     exact = problem.hold == "zoh"
-    fit = FitLines(f, Y, U * out * (1.0 if exact else hold), dt if exact else None, True, out)
+    fit = FitLines(f, Y, U * out * (1.0 if exact else hold), dt if exact else None, True, out, problem.y.size)
     return RecordSpectrum(f, step, Y, U * out * hold, fit)
 
 
@@ -150,7 +153,7 @@ def _periodic_spectrum(problem, lines: "PeriodicLines", step: float, max_lines: 
     pick = np.unique(np.round(np.geomspace(1, fl.size, min(max_lines, fl.size))).astype(int) - 1)
     f_fit = fl[pick]
     out_fit = _filter_response(problem, f_fit)
-    fit = FitLines(f_fit, lines.Y[pick], lines.U[pick] * out_fit, dt, False, out_fit)
+    fit = FitLines(f_fit, lines.Y[pick], lines.U[pick] * out_fit, dt, True, out_fit, 0)
     f = fl[0] * np.exp(step * np.arange(int(np.floor(np.log(fl[-1] / fl[0]) / step)) + 1))
     nearest = np.clip(np.searchsorted(fl, f), 1, fl.size - 1)
     nearest = np.where(np.abs(fl[nearest - 1] - f) < np.abs(fl[nearest] - f), nearest - 1, nearest)

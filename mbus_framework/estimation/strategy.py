@@ -39,7 +39,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.estimation import global_search as gs
-from mbus_framework.estimation.acceptance import Verdict, estimate_noise, judge
+from mbus_framework.estimation.acceptance import Verdict, estimate_noise, judge, residual_input_test
 from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported names)
     BandFilter,
     align_time_scale,
@@ -94,8 +94,7 @@ class StrategyOptions(BaseModel):
     search_box: float | None = Field(
         None, gt=1, description="also confine log-scale parameters to x/÷ this factor of the initial values"
     )
-    local_box: float = Field(100.0, gt=1, description="each local fit moves log-scale parameters at most x/÷ "
-                                                      "this factor from its start (the final refinement: the region)")
+    time_budget: float = Field(300.0, gt=0, description="no new start after this many seconds of search [s]")
 
 
 #: A local solver: (problem, start, band filter or None, max_nfev, final) -> LocalResult
@@ -215,9 +214,7 @@ class _Search:
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
                   explore: bool = False) -> bool:
         """One time-domain local fit (band stages, then the full band); True when accepted."""
-        o = self.options
-        p = dataclasses.replace(self.problem, lower=None, upper=None)
-        p.lower, p.upper = _around(self.problem, theta, o.local_box, self.problem.lower, self.problem.upper)
+        o, p = self.options, self.problem
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
         if spectral_cost is not None:
@@ -236,7 +233,8 @@ class _Search:
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
             path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
-        res = self.local_fit(p, theta, None, 2 * o.stage_max_nfev if explore else 50 * o.stage_max_nfev, not explore)
+        precise = not explore and not origin.endswith("(as given)")
+        res = self.local_fit(p, theta, None, (10 if precise else 2) * o.stage_max_nfev, precise)
         self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
         res.trace = path + _stage_trace(res, "full band")
         verdict = self.judge(res)
@@ -260,7 +258,7 @@ class _Search:
                      whiteness_threshold=o.whiteness_threshold if o.accept_white else np.inf,
                      white_noise=p.noise_filter is None, lags=o.residual_lags)
 
-    def fallback(self) -> bool:
+    def fallback(self, out_of_time=lambda: False) -> bool:
         """Sobol starts around the best minimum, aligned and scanned in the time domain."""
         o, p = self.options, self.problem
         if not o.fallback_starts or self.best is None:
@@ -269,6 +267,8 @@ class _Search:
         design = gs.sobol(max(int(free.sum()), 1), o.fallback_starts, o.seed)
         anchor = self.best.theta
         for row in design:
+            if out_of_time():
+                break
             th = anchor.copy()
             th[free] = anchor[free] * np.exp((2 * row[: free.sum()] - 1) * np.log(o.spread))
             if self.try_start(np.clip(th, p.lower, p.upper), "fallback multi-start", explore=True):
@@ -290,7 +290,7 @@ class _Search:
             self.report.widened += [n for n, f in zip(self.names, low | high) if f]
             self.problem = dataclasses.replace(self.problem, lower=lo, upper=hi)
             self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
-            again = self.local_fit(self.problem, final.theta, None, 50 * o.stage_max_nfev, True)
+            again = self.local_fit(self.problem, final.theta, None, 10 * o.stage_max_nfev, True)
             self.nfev, self.njev = self.nfev + again.nfev, self.njev + again.njev
             if again.cost <= final.cost:
                 again.trace = final.trace + _stage_trace(again, "widened region")
@@ -310,6 +310,11 @@ def search(
     s = _Search(problem, local_fit, options, progress)
     o = options
     seeds = s.seeds()
+    silent = residual_input_test(problem.y - problem.y.mean(), problem.u, 0).p_value > o.significance
+    if silent:  # no response to the input in the record: nothing a wider search could find
+        o = options.model_copy(update={"n_starts": 1, "global_search": False, "fallback_starts": 0, "widen": 0})
+        s.options = o
+        s.report.scan = {"skipped": "no response to the input is detectable in the record"}
     s.report.initial_source, s.report.initial = seeds[0][0], dict(zip(s.names, map(float, seeds[0][1])))
     if progress:
         progress.start("global search (starts)", total=o.n_starts)
@@ -322,18 +327,19 @@ def search(
     else:
         queue += [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
     tried = 0
+    out_of_time = lambda: time.perf_counter() - t0 > o.time_budget  # noqa: E731
     for c in queue:
-        if tried >= o.n_starts:
+        if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
         if s.try_start(c.theta, c.origin, c.cost):
             accepted = True
             break
     # 2. the whole region
-    if not accepted and o.global_search and spectral_ok and tried < o.n_starts:
+    if not accepted and o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
         found = s.candidates_from(s.scan(), o.spectral_candidates)
         for c in found:
-            if tried >= o.n_starts:
+            if tried >= o.n_starts or out_of_time():
                 break
             if s.best is not None and _near(c.theta, s.best.theta):
                 continue
@@ -342,8 +348,8 @@ def search(
                 accepted = True
                 break
     # 3. last resort: around the best minimum
-    if not accepted:
-        accepted = s.fallback()
+    if not accepted and not out_of_time():
+        accepted = s.fallback(lambda: out_of_time())
     if progress:
         progress.stop()
     best = s.best
@@ -352,7 +358,7 @@ def search(
     s.report.verdict = v.as_dict() if v is not None else None
     s.report.accepted_because = v.reason if accepted and v is not None else (
         f"not confirmed: best of {len(s.report.starts)} starts; {v.reason if v is not None else 'no start'}")
-    final = local_fit(s.problem, best.theta, None, 50 * o.stage_max_nfev, True)
+    final = local_fit(s.problem, best.theta, None, 10 * o.stage_max_nfev, True)
     s.nfev, s.njev = s.nfev + final.nfev, s.njev + final.njev
     if final.cost > best.cost:  # refinement never makes things worse
         final = best

@@ -11,6 +11,7 @@ from mbus_framework import __version__
 from mbus_framework.estimation.nuisance import DELAY, GAIN
 from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
+from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -130,10 +131,12 @@ def build_result(
         result["compensation"] = compensation
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
-    result["warnings"] = identifiability_warnings(result, c.config.identifiability, fit)
+    result["warnings"] = gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance)
+    result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
+    result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
         result["warnings"].insert(
-            0,
+            len(result["warnings"]) and int(not result["fit"]["reliable"]),
             f"the residuals are not white (mean |autocorrelation| {whiteness:.2f}): the model does not explain "
             f"the data (model mismatch, transducer dynamics or a local minimum); the estimates are biased",
         )

@@ -16,6 +16,11 @@ physics-based starts and the shape x time-scale scan, each fitted shape first, l
 This is what MATLAB's System Identification Toolbox does with frequency-domain data; it is
 far less multimodal than the time-domain fit and it gives the noise level for free.
 
+Periods that are not yet steady (a lightly damped medium still ringing from its start at rest)
+add a transient term to every averaged line, a free response of the chain from the periods'
+mean start-state deviation; it is projected out of the residual (variable projection), so the
+fit stays exact without waiting for a steady state.
+
 The common result (residuals, cost, Jacobian) is evaluated in the time domain at the estimate
 so the run's uncertainty and warnings are those of every solver; the frequency-domain
 statistics (lines, periods, weighted cost, its chi-square p-value, standard errors from the
@@ -32,7 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import stats
 from scipy.optimize import least_squares
 
-from mbus_framework.engine.frequency import response, response_with_jacobian
+from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
 from mbus_framework.errors import EstimationError
 from mbus_framework.estimation import global_search as gs
 from mbus_framework.estimation.local import LocalResult
@@ -58,6 +63,7 @@ class FrequencyDomain(Solver):
 
     Options = FrequencyDomainOptions
     summary = "frequency-domain fit of the period-averaged response (periodic records), exact ZOH model"
+    periodic_records = True
 
     def solve(self, problem: FitProblem, progress: Progress | None = None) -> FitResult:
         t0 = time.perf_counter()
@@ -115,13 +121,16 @@ class FrequencyDomain(Solver):
             seeds.append(("config", p.full(np.asarray(p.initial, float)[p.free], p.initial)))
         guess = p.default_initial()
         seeds.append(("model.initial_guess", p.full(np.asarray(guess, float)[p.free], guess)))
+        given = [gs.Candidate(np.clip(th, space.lo, space.hi), np.nan, "config (as given)")
+                 for src, th in seeds if src == "config"]
         cands = [gs.align(p, spectrum, np.clip(th, space.lo, space.hi), space, src) for src, th in seeds]
         if o.global_search and space.movable.any():
             template = np.clip(seeds[-1][1], space.lo, space.hi)
             found = gs.scan(p, spectrum, space, template, shapes=o.shapes, seed=o.seed,
                             amplitude_penalty=o.amplitude_penalty)
             cands += gs.distinct(found, 0.3, o.spectral_candidates)
-        return gs.distinct([gs.homotopy(p, spectrum, c, space) for c in cands], rtol=0.02)[: o.n_starts]
+        fitted = gs.distinct([gs.homotopy(p, spectrum, c, space) for c in cands], rtol=0.02)
+        return (given + fitted)[: max(o.n_starts, len(given) + 1)]
 
 
 @dataclasses.dataclass
@@ -138,13 +147,15 @@ class _FdLines:
     def of(cls, lines: PeriodicLines, weighting: str) -> "_FdLines":
         """Weights 1 / sqrt(variance of the real or imaginary part of each averaged line):
         white noise sigma^2 gives E|E_k|^2 = P sigma^2 / M for the DFT of an M-period average."""
-        if lines.line_var is not None and weighting == "lines":
+        signal = float(np.mean(np.abs(lines.Y) ** 2)) / lines.period  # per-sample power scale
+        noisy = lines.noise_var is not None and lines.noise_var > 1e-24 * max(signal, 1e-300)
+        if noisy and lines.line_var is not None and weighting == "lines":
             part_var = np.maximum(lines.line_var, 1e-300) / 2.0
-        elif lines.noise_var is not None:
+        elif noisy:
             part_var = np.full(lines.f.size, lines.period * lines.noise_var / (2.0 * lines.periods))
-        else:
+        else:  # one steady period, or noise-free: unweighted
             part_var = np.ones(lines.f.size)
-        return cls(lines.f, lines.U, lines.Y, 1.0 / np.sqrt(part_var), lines.noise_var is not None)
+        return cls(lines.f, lines.U, lines.Y, 1.0 / np.sqrt(part_var), bool(noisy))
 
     def chi_square(self, cost: float, n_params: int):
         """(2 cost, dof, p): the weighted sum of squares is chi-square with 2K - p degrees of
@@ -161,16 +172,43 @@ def _coords(problem, space):
     return logs
 
 
+def _transient_projector(problem, theta, lines: "_FdLines"):
+    """Orthonormal basis of the weighted, real-stacked transient terms, or None.
+
+    Periods that are not yet steady add to each averaged line the transform of a free response
+    from the periods' mean start-state deviation d: C (I - Phi^P) (I - Phi e^{-iw})^-1 d, whose
+    span is that of :func:`~mbus_framework.engine.frequency.tail_basis` without its shift."""
+    B = tail_basis(problem.model, theta[: problem.n_model], lines.f, problem.dt, 0) * lines.sqrt_w[:, None]
+    B = np.vstack([B.real, B.imag])
+    if not np.all(np.isfinite(B)) or B.shape[1] >= B.shape[0] // 2:
+        return None
+    U, sv, _ = np.linalg.svd(B, full_matrices=False)
+    keep = sv > 1e-10 * sv.max(initial=0.0)
+    return U[:, keep] if keep.any() else None
+
+
 def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max_nfev: int) -> LocalResult:
     logs = _coords(problem, space)
     n_model = problem.n_model
     theta0 = np.clip(theta0, space.lo, space.hi)
     zlo, zhi = np.log(space.lo[logs]), np.log(space.hi[logs])
+    cache: dict = {}
 
     def theta_of(z):
         th = theta0.copy()
         th[logs] = np.exp(np.clip(z, zlo, zhi))
         return th
+
+    def projector(th):
+        key = th.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = _transient_projector(problem, th, lines)
+        return cache[key]
+
+    def project(x, th):
+        Q = projector(th)
+        return x if Q is None else x - Q @ (Q.T @ x)
 
     def residual(z):
         th = theta_of(z)
@@ -178,7 +216,7 @@ def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max
         r = (gain * response(problem.model, th[:n_model], lines.f, problem.dt) * lines.U - lines.Y) * lines.sqrt_w
         if not np.all(np.isfinite(r)):
             return np.full(2 * r.size, 1e6)
-        return np.concatenate([r.real, r.imag])
+        return project(np.concatenate([r.real, r.imag]), th)
 
     def jacobian(z):
         th = theta_of(z)
@@ -189,7 +227,7 @@ def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max
             J[:, c] = (gain * Jm[:, i] if i < n_model else G) * th[i] * lines.U * lines.sqrt_w
         if not np.all(np.isfinite(J)):
             J = np.zeros_like(J)
-        return np.vstack([J.real, J.imag])
+        return project(np.vstack([J.real, J.imag]), th)
 
     res = least_squares(residual, np.log(theta0[logs]), jac=jacobian, method="lm", max_nfev=max_nfev,
                         xtol=1e-12, ftol=1e-14)
