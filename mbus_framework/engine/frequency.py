@@ -188,5 +188,6 @@ def tail_basis(model: MediumModel, theta, f, dt: float, n_samples: int) -> np.nd
     Phi = discretize(ss, float(dt), "zoh").Phi
     n = Phi.shape[0]
     M = np.eye(n)[None] - Phi[None] * np.exp(-1j * w)[:, None, None]
-    rows = np.linalg.solve(np.transpose(M, (0, 2, 1)), np.broadcast_to(ss.C[0].astype(complex), (f.size, n)))
+    rhs = np.broadcast_to(ss.C[0].astype(complex), (f.size, n))[..., None]  # stacked vectors (numpy 2)
+    rows = np.linalg.solve(np.transpose(M, (0, 2, 1)), rhs)[..., 0]
     return shift * rows

@@ -304,8 +304,8 @@ class MediumModelContract:
             spec = registry.get("solver", name)
             n = self.solver_record_samples
             u = binary_input(n, 4, seed=1)
-            if getattr(spec.implementation, "periodic_records", False):  # four periods of the same input
-                u = np.tile(u[: n // 4], 4)
+            if getattr(spec.implementation, "periodic_records", False):  # four periods of the whole input
+                u = np.tile(u, 4)
             t = np.arange(u.size) * dt
             y = simulate(model, truth, u, dt)
             options = validate_options(spec.implementation.Options, self.solver_options.get(name, {}),

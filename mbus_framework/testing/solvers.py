@@ -99,6 +99,8 @@ class SolverContract:
         """(noise-free problem, truth); ``kw`` (initial, fixed, lower, upper) go to FitProblem."""
         spec = self.get_registry().get("solver", self.solver_name)
         periodic = bool(getattr(spec.implementation, "periodic_records", False))
+        if periodic:  # 4 periods of 300 samples: enough lines for the transient projection
+            kw.setdefault("n_samples", 1200)
         return contract_problem(registry=self.get_registry(), periodic=periodic, **kw)
 
     def _fit(self, **kw) -> tuple[FitProblem, np.ndarray, FitResult]:

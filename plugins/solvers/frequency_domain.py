@@ -16,10 +16,16 @@ physics-based starts and the shape x time-scale scan, each fitted shape first, l
 This is what MATLAB's System Identification Toolbox does with frequency-domain data; it is
 far less multimodal than the time-domain fit and it gives the noise level for free.
 
-Periods that are not yet steady (a lightly damped medium still ringing from its start at rest)
-add a transient term to every averaged line, a free response of the chain from the periods'
-mean start-state deviation; it is projected out of the residual (variable projection), so the
-fit stays exact without waiting for a steady state.
+The leading ``transient_periods`` are discarded; whatever is still not steady after them (a
+lightly damped medium still ringing from its start at rest) biases the pure frequency-domain
+estimate, so use enough periods, or keep the polish below.
+
+The steady-state lines do not see what only the start of the record shows (a slow mode that
+never settles within the record, the static response); with ``polish`` (the default) the
+frequency-domain estimate (and the config's initial values, if any) start a final time-domain
+Levenberg-Marquardt fit of the whole record,
+kept when it lowers the time-domain cost (``extras.polished``); ``polish: false`` gives the pure
+frequency-domain estimate (``extras.frequency_domain_estimate`` holds it either way).
 
 The common result (residuals, cost, Jacobian) is evaluated in the time domain at the estimate
 so the run's uncertainty and warnings are those of every solver; the frequency-domain
@@ -37,10 +43,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy import stats
 from scipy.optimize import least_squares
 
-from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
+from mbus_framework.engine.frequency import response, response_with_jacobian
 from mbus_framework.errors import EstimationError
 from mbus_framework.estimation import global_search as gs
-from mbus_framework.estimation.local import LocalResult
+from mbus_framework.estimation.local import LocalResult, lm_fit
 from mbus_framework.estimation.problem import FitProblem, FitResult, Progress, Solver
 from mbus_framework.estimation.spectral import PeriodicLines, periodic_lines, record_spectrum
 from mbus_framework.estimation.strategy import StrategyOptions
@@ -55,6 +61,7 @@ class FrequencyDomainOptions(BaseModel):
     weighting: Literal["pooled", "lines"] = Field(
         "pooled", description="noise of each line: pooled white noise, or each line's own period scatter")
     max_nfev: int = Field(200, ge=10, description="evaluation budget of each local frequency-domain fit")
+    polish: bool = Field(True, description="finish with a time-domain fit of the whole record from the frequency-domain estimate")
     strategy: StrategyOptions = Field(default_factory=StrategyOptions)
 
 
@@ -95,13 +102,24 @@ class FrequencyDomain(Solver):
         if progress:
             progress.stop()
         chi2, dof, p = fit_lines.chi_square(best.cost, int(problem.free.sum()))
+        fd_theta, fd_cost = best.theta, best.cost
+        polished = False
+        if o.polish:  # from the frequency-domain estimate and from the config's start, the lower cost
+            starts = [best.theta] + ([np.asarray(problem.initial, float)] if problem.initial is not None else [])
+            fits = [lm_fit(problem, np.clip(th, problem.lower, problem.upper), None, 5 * o.max_nfev, final=True)
+                    for th in starts]
+            td = min(fits, key=lambda r: r.cost)
+            if td.cost < 0.5 * float(np.sum((problem.y - problem.predict(best.theta)) ** 2)):
+                best, polished = td, True
         extras = {
             "method": "frequency-domain weighted least squares (Levenberg-Marquardt)",
             "period_samples": lines.period, "periods_averaged": lines.periods, "transient_periods": lines.skipped,
-            "lines": int(fit_lines.f.size), "weighting": o.weighting, "weighted_cost": best.cost,
+            "lines": int(fit_lines.f.size), "weighting": o.weighting,
+            "frequency_domain_estimate": dict(zip(problem.names, map(float, fd_theta))), "polished": polished,
+            "weighted_cost": fd_cost,
             "chi_square": chi2, "chi_square_dof": dof, "chi_square_p": p,
             "noise_std_from_periods": None if lines.noise_var is None else float(np.sqrt(lines.noise_var)),
-            "frequency_domain_standard_errors": _fd_standard_errors(problem, fit_lines, best.theta, space),
+            "frequency_domain_standard_errors": _fd_standard_errors(problem, fit_lines, fd_theta, space),
             "starts": tried,
         }
         report = {"accepted": bool(p is None or p > o.strategy.significance),
@@ -172,43 +190,16 @@ def _coords(problem, space):
     return logs
 
 
-def _transient_projector(problem, theta, lines: "_FdLines"):
-    """Orthonormal basis of the weighted, real-stacked transient terms, or None.
-
-    Periods that are not yet steady add to each averaged line the transform of a free response
-    from the periods' mean start-state deviation d: C (I - Phi^P) (I - Phi e^{-iw})^-1 d, whose
-    span is that of :func:`~mbus_framework.engine.frequency.tail_basis` without its shift."""
-    B = tail_basis(problem.model, theta[: problem.n_model], lines.f, problem.dt, 0) * lines.sqrt_w[:, None]
-    B = np.vstack([B.real, B.imag])
-    if not np.all(np.isfinite(B)) or B.shape[1] >= B.shape[0] // 2:
-        return None
-    U, sv, _ = np.linalg.svd(B, full_matrices=False)
-    keep = sv > 1e-10 * sv.max(initial=0.0)
-    return U[:, keep] if keep.any() else None
-
-
 def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max_nfev: int) -> LocalResult:
     logs = _coords(problem, space)
     n_model = problem.n_model
     theta0 = np.clip(theta0, space.lo, space.hi)
     zlo, zhi = np.log(space.lo[logs]), np.log(space.hi[logs])
-    cache: dict = {}
 
     def theta_of(z):
         th = theta0.copy()
         th[logs] = np.exp(np.clip(z, zlo, zhi))
         return th
-
-    def projector(th):
-        key = th.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = _transient_projector(problem, th, lines)
-        return cache[key]
-
-    def project(x, th):
-        Q = projector(th)
-        return x if Q is None else x - Q @ (Q.T @ x)
 
     def residual(z):
         th = theta_of(z)
@@ -216,7 +207,7 @@ def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max
         r = (gain * response(problem.model, th[:n_model], lines.f, problem.dt) * lines.U - lines.Y) * lines.sqrt_w
         if not np.all(np.isfinite(r)):
             return np.full(2 * r.size, 1e6)
-        return project(np.concatenate([r.real, r.imag]), th)
+        return np.concatenate([r.real, r.imag])
 
     def jacobian(z):
         th = theta_of(z)
@@ -227,7 +218,7 @@ def _fd_fit(problem: FitProblem, lines: _FdLines, theta0: np.ndarray, space, max
             J[:, c] = (gain * Jm[:, i] if i < n_model else G) * th[i] * lines.U * lines.sqrt_w
         if not np.all(np.isfinite(J)):
             J = np.zeros_like(J)
-        return project(np.vstack([J.real, J.imag]), th)
+        return np.vstack([J.real, J.imag])
 
     res = least_squares(residual, np.log(theta0[logs]), jac=jacobian, method="lm", max_nfev=max_nfev,
                         xtol=1e-12, ftol=1e-14)
