@@ -8,4 +8,5 @@ from mbus_framework.testing.solvers import contract_classes
 
 ONE_START = {"strategy": {"n_starts": 1}}
 
-globals().update(contract_classes({"scipy_lm": ONE_START, "casadi_collocation": ONE_START}))
+globals().update(contract_classes({"scipy_lm": ONE_START, "casadi_collocation": ONE_START,
+                                   "frequency_domain": ONE_START}))

@@ -36,6 +36,8 @@ class FitProblem:
     output_filter: linear map applied to model outputs and sensitivities (compensators).
     nuisance:  input gain and delay (:mod:`mbus_framework.estimation.nuisance`); when active, the
                parameter vector is the model's followed by ``input_gain`` and ``delay``.
+    noise_filter: the linear map a compensator applied to the record (its noise is then
+               coloured), or None for white noise.
     """
 
     model: MediumModel
@@ -49,6 +51,7 @@ class FitProblem:
     hold: Hold = "zoh"
     output_filter: OutputFilter | None = None
     nuisance: NuisanceSettings = field(default_factory=NuisanceSettings)
+    noise_filter: Any = None
 
     def __post_init__(self):
         self.t, self.u, self.y = (np.asarray(a, dtype=float) for a in (self.t, self.u, self.y))
@@ -207,10 +210,15 @@ class FitResult:
 
 
 class Solver(ABC):
-    """Base class of solver plugins; ``options`` is an instance of ``Options``."""
+    """Base class of solver plugins; ``options`` is an instance of ``Options``.
+
+    ``periodic_records``: the solver needs a periodic record (an input repeating with an
+    integer number of samples per period, at least two periods); the contract suites then
+    give it one."""
 
     Options: ClassVar[type[BaseModel]] = NoOptions
     summary: ClassVar[str] = ""
+    periodic_records: ClassVar[bool] = False
 
     def __init__(self, options: BaseModel):
         self.options = options

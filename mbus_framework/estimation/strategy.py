@@ -1,24 +1,32 @@
-"""Global estimation strategy for output-error fits of lightly damped chains.
+"""Global estimation strategy: where to start, where to search, and when to stop.
 
-The output-error cost of a wave-propagation model is multimodal: a model whose wave arrives
-a few periods early or late matches the data at a wrong phase (cycle skipping). The strategy
-removes that ambiguity before any local fit, for any medium model:
+The output-error cost of a wave model is multimodal (cycle skipping along the time scale) and,
+for heavily damped media, nearly flat wherever the model explains nothing. The strategy works
+for lightly damped slices and for stiff, heavily damped liquids and tissues alike, for any
+medium model and any local solver (``local_fit``):
 
-1. **Physics-based start.** The user's initial values, or the model's own
-   ``initial_guess`` (for the chains: first arrival -> sound speed -> stiffness, Sec. 3.5.1).
-2. **Time-scale alignment.** Every parameter declares a ``time_exponent`` e (stiffness 2,
-   damping 1, relaxation time -1). Scaling theta_i by c**e_i makes all the model's dynamics
-   run c times faster, i.e. moves its arrival time by 1/c without changing its shape. A 1-D
-   grid over c (with the best amplitude factor per point) puts the model's arrival on the
-   measured one.
-3. **Band continuation.** Each local fit first matches a low-passed residual (cut-off a
-   fraction of the record's signal bandwidth, where the cost has few local minima), then
-   widens the band to the full record.
-4. **Budgeted multi-start.** Further starts spread log-uniformly (Sobol) around the aligned
-   start, each aligned and band-continued; the search stops once ``confirm`` starts reach
-   the same best minimum, or the budget is spent. The best is refined on the full record.
+1. **Physical search region.** Every property within a plausible material range (moduli
+   1e5-1e14 Pa, viscosities 1e-3-1e9 Pa s by default, ``material_ranges``); not a box around
+   a possibly wrong start. An estimate that ends on the region's edge widens it (x/÷ 100 on
+   that side) and is fitted again (``widen`` times).
+2. **Starts from physics, then from the whole region.** First the user's initial values as
+   given, then they and the model's own ``initial_guess`` (for chains: first arrival -> sound
+   speed) fitted in the frequency domain, then the
+   frequency-domain shape x time-scale scan over the whole region
+   (:mod:`mbus_framework.estimation.global_search`). Each start is fitted in the frequency
+   domain (shape and time scale first, response level last, the record's unfinished tail
+   projected out), so candidates arrive ranked by an exact spectral cost.
+3. **Time-domain local fits** from the candidates, best first, at most ``n_starts`` of them.
+4. **Acceptance by the noise level, not by whiteness alone** (:mod:`mbus_framework.estimation.acceptance`):
+   a minimum is accepted when no input-related structure is left in its residual (an F test
+   of a model-free FIR fit), its variance agrees with the repeated periods' noise when the
+   record is periodic, and its residual is white. Otherwise the search goes on; when the
+   candidates are spent, a multi-start around the best minimum follows
+   (``fallback_starts``, time-scale alignment and band continuation in the time domain), and
+   a minimum that is still not accepted is reported as such (result.json warns).
+5. The best minimum is refined on the full record.
 
-Everything tried is reported (``SearchReport``), so result.json says what won.
+Everything tried is reported (:class:`SearchReport`), so result.json says what won and why.
 """
 from __future__ import annotations
 
@@ -29,61 +37,64 @@ from typing import Callable
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy import fft as sfft
-from scipy.stats import qmc
 
+from mbus_framework.estimation import global_search as gs
+from mbus_framework.estimation.acceptance import Verdict, estimate_noise, judge, residual_input_test
+from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported names)
+    BandFilter,
+    align_time_scale,
+    coordinate_scan,
+    residual_autocorrelation,
+    residual_whiteness,
+    signal_bandwidth,
+    time_exponents,
+)
+from mbus_framework.estimation.local import LocalResult
 from mbus_framework.estimation.problem import FitProblem, Progress
+from mbus_framework.estimation.spectral import record_spectrum
 
 
 class StrategyOptions(BaseModel):
     """Options of the global strategy (the ``solver.options.strategy`` config section)."""
 
     model_config = ConfigDict(extra="forbid")
-    time_scale: bool = Field(True, description="align the arrival time by a 1-D time-scale search")
-    time_scale_range: float = Field(4.0, gt=1, description="search time scales c in [1/r, r]")
-    time_scale_points: int = Field(40, ge=3, description="grid points of the time-scale search")
+    material_ranges: dict[str, tuple[float, float]] = Field(
+        default_factory=lambda: dict(gs.MATERIAL_RANGES),
+        description="plausible range of every property, by its unit ('Pa', 'Pa s', 's'): the search region",
+    )
+    widen: int = Field(2, ge=0, description="times the region is widened (x/÷ 100) when an estimate ends on its edge")
+    global_search: bool = Field(True, description="scan the whole region in the frequency domain when the "
+                                                  "physics-based starts are not accepted")
+    shapes: int = Field(128, ge=8, description="Sobol shapes of the first scan level")
+    local_shapes: int = Field(24, ge=4, description="shapes around each of the best points at the finer levels")
+    spectral_candidates: int = Field(4, ge=1, description="scan candidates fitted in the frequency domain")
+    amplitude_penalty: float = Field(1e-3, ge=0, description="weight of the response-level mismatch in the scan")
+    n_starts: int = Field(6, ge=1, description="maximum number of time-domain local fits from the candidates")
+    fallback_starts: int = Field(6, ge=0, description="multi-start around the best minimum when none was accepted")
     bands: list[float] = Field(
-        default_factory=lambda: [0.15, 0.3, 0.6],
-        description="low-pass cut-offs of the continuation, as fractions of the signal bandwidth; "
-        "the full band always follows",
+        default_factory=lambda: [0.3],
+        description="fallback starts: low-pass stages before the full-band local fit, as fractions of the "
+        "signal bandwidth (starts fitted in the frequency domain go straight to the full band)",
     )
-    n_starts: int = Field(12, ge=1, description="maximum number of starts (the first is the physics/user start)")
-    spread: float = Field(4.0, ge=1, description="extra starts are drawn log-uniformly within x/÷ spread")
-    confirm: int = Field(
-        0,
-        ge=0,
-        description="also stop when this many starts reach the best minimum although its residuals are "
-        "not white (0: never; agreeing starts can share a local minimum)",
-    )
-    stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each continuation stage")
-    seed: int = Field(0, description="seed of the multi-start design")
-    search_box: float = Field(
-        1e3, gt=1, description="log-scale estimates stay within x/÷ this factor of the initial values"
-    )
-    accept_white: bool = Field(
-        True,
-        description="accept a minimum at once when its residuals are white (no structure left to fit)",
-    )
+    stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each local-fit stage")
+    significance: float = Field(1e-3, gt=0, lt=1, description="p-value below which input-related structure "
+                                                              "in the residual rejects a minimum")
+    residual_lags: int | None = Field(None, ge=1, description="lags of the residual-input test (default N/16, <= 400)")
+    accept_white: bool = Field(True, description="also require white residuals to accept a minimum")
     whiteness_threshold: float = Field(
         0.1, gt=0, description="largest mean |autocorrelation| of residuals at lags 1-10 counted as white"
     )
-    coordinate_scan: int = Field(
-        1, ge=0, description="sweeps of a per-parameter log-grid scan after alignment (0 = off)"
+    seed: int = Field(0, description="seed of the Sobol designs")
+    # the time-domain exploration of the fallback multi-start
+    time_scale: bool = Field(True, description="fallback starts: align the arrival by a 1-D time-scale search")
+    time_scale_range: float = Field(4.0, gt=1, description="fallback: time scales c in [1/r, r]")
+    time_scale_points: int = Field(40, ge=3, description="fallback: grid points of the time-scale search")
+    spread: float = Field(4.0, ge=1, description="fallback starts are drawn log-uniformly within x/÷ spread")
+    coordinate_scan: int = Field(1, ge=0, description="fallback: sweeps of a per-parameter log-grid scan (0 = off)")
+    search_box: float | None = Field(
+        None, gt=1, description="also confine log-scale parameters to x/÷ this factor of the initial values"
     )
-
-
-@dataclass
-class LocalResult:
-    """Outcome of one local least-squares solve (log-parameter space)."""
-
-    theta: np.ndarray
-    cost: float
-    nfev: int
-    njev: int
-    status: int
-    message: str
-    iterations: int
-    trace: list[dict] = field(default_factory=list)
+    time_budget: float = Field(300.0, gt=0, description="no new start after this many seconds of search [s]")
 
 
 #: A local solver: (problem, start, band filter or None, max_nfev, final) -> LocalResult
@@ -96,108 +107,196 @@ class SearchReport:
 
     initial_source: str
     initial: dict[str, float]
-    aligned: dict[str, float] | None = None
-    time_scale: float | None = None
     signal_bandwidth_hz: float | None = None
     bands_hz: list[float] = field(default_factory=list)
     starts: list[dict] = field(default_factory=list)
     winner: int | None = None
-    confirmed_by: int = 0
+    accepted: bool = False
     accepted_because: str = ""
+    verdict: dict | None = None
+    noise: dict | None = None
+    scan: dict | None = None
     box: dict | None = None
+    widened: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
 
 
-class BandFilter:
-    """Zero-phase low-pass |H(f)| = 1 / sqrt(1 + (f/fc)^8) applied along axis 0 by FFT.
+class _Search:
+    """State of one search: the boxed problem, the spectrum, the best minimum so far."""
 
-    The record is zero-padded to twice its length, so the filter is a linear convolution
-    (no wrap-around). Being linear, it applies to residuals and Jacobians alike.
-    """
+    def __init__(self, problem: FitProblem, local_fit: LocalFit, options: StrategyOptions, progress):
+        self.options, self.local_fit, self.progress = options, local_fit, progress
+        self.space = gs.search_space(problem, options.material_ranges)
+        lo, hi = self.space.lo.copy(), self.space.hi.copy()
+        if problem.initial is not None and options.search_box:
+            lo, hi = _around(problem, np.asarray(problem.initial, float), options.search_box, lo, hi)
+            self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
+        self.problem = dataclasses.replace(problem, lower=lo, upper=hi)
+        self._hard = (problem.lower.astype(float), problem.upper.astype(float))
+        self.names = problem.names
+        self.noise = estimate_noise(problem.t, problem.u, problem.y)
+        f_sig = signal_bandwidth(problem.y, problem.dt)
+        self.filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
+        self.floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
+        self.best: LocalResult | None = None
+        self.verdict: Verdict | None = None
+        self.nfev = self.njev = 0
+        self._spectrum = None
+        self.report = SearchReport("", {}, signal_bandwidth_hz=f_sig, bands_hz=[b.cutoff_hz for b in self.filters])
+        self.report.noise = self.noise.as_dict()
+        self.report.box = self._box_dict()
 
-    def __init__(self, cutoff_hz: float, n: int, dt: float):
-        self.cutoff_hz = float(cutoff_hz)
-        self.n = n
-        self.nfft = sfft.next_fast_len(2 * n, real=True)
-        f = sfft.rfftfreq(self.nfft, dt)
-        self.gain = 1.0 / np.sqrt(1.0 + (f / cutoff_hz) ** 8)
+    @property
+    def spectrum(self):
+        if self._spectrum is None:
+            self._spectrum = record_spectrum(self.problem)
+        return self._spectrum
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        X = sfft.rfft(x, self.nfft, axis=0)
-        g = self.gain if x.ndim == 1 else self.gain[:, None]
-        return sfft.irfft(X * g, self.nfft, axis=0)[: self.n]
+    def _box_dict(self) -> dict:
+        return {"lower": dict(zip(self.names, map(float, self.problem.lower))),
+                "upper": dict(zip(self.names, map(float, self.problem.upper)))}
 
+    def seeds(self) -> list[tuple[str, np.ndarray]]:
+        p = self.problem
+        out = []
+        if p.initial is not None:
+            out.append(("config", p.full(np.asarray(p.initial, float)[p.free], p.initial)))
+        guess = p.default_initial()
+        out.append(("model.initial_guess", p.full(np.asarray(guess, float)[p.free], guess)))
+        return [(s, np.clip(th, p.lower, p.upper)) for s, th in out]
 
-def signal_bandwidth(y: np.ndarray, dt: float, fraction: float = 0.99) -> float:
-    """Frequency [Hz] below which ``fraction`` of the record's power lies."""
-    Y = np.abs(np.fft.rfft(y - np.mean(y))) ** 2
-    f = np.fft.rfftfreq(len(y), dt)
-    cum = np.cumsum(Y)
-    if cum[-1] <= 0:
-        return float(f[-1])
-    return float(f[min(np.searchsorted(cum, fraction * cum[-1]), len(f) - 1)])
+    def candidates_from(self, starts: list[gs.Candidate], limit: int) -> list[gs.Candidate]:
+        """Frequency-domain fits of ``starts`` (at most ``limit``), distinct, best first."""
+        fitted = []
+        for c in starts[:limit]:
+            try:
+                fitted.append(gs.homotopy(self.problem, self.spectrum, c, self.space))
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                continue
+        return gs.distinct(fitted, rtol=0.02)
 
+    def seed_candidates(self, seeds: list[tuple[str, np.ndarray]]) -> list[gs.Candidate]:
+        """Each physics-based start fitted in the frequency domain twice: as it is (its level
+        trusted) and after a shape-first time-scale alignment; distinct, best first."""
+        p, sp, space = self.problem, self.spectrum, self.space
+        out = []
+        for origin, th in seeds:
+            try:
+                out.append(gs.refine(p, sp, gs.Candidate(th, np.nan, origin), space))
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                pass
+            out += self.candidates_from([gs.align(p, sp, th, space, origin)], 1)
+        return gs.distinct(out, rtol=0.02)
 
-def time_exponents(problem: FitProblem) -> np.ndarray:
-    return np.array([p.time_exponent for p in problem.parameters], dtype=float)
+    def scan(self) -> list[gs.Candidate]:
+        """The multi-level shape x scale scan over the whole region (best distinct first)."""
+        o, p, sp = self.options, self.problem, self.spectrum
+        template = np.clip(p.full(np.array([q.typical for q in p.parameters])[p.free], p.default_initial()),
+                           p.lower, p.upper)
+        kw = dict(amplitude_penalty=o.amplitude_penalty)
+        level1 = gs.scan(p, sp, self.space, template, shapes=o.shapes, seed=o.seed, **kw)
+        centres = [c.theta for c in gs.distinct(level1, 0.5, 5)] + [th for _, th in self.seeds()]
+        if self.best is not None:
+            centres.append(self.best.theta)
+        level2 = gs.scan(p, sp, self.space, template, shapes=o.local_shapes, seed=o.seed + 1, around=centres,
+                         halfwidth=1.5, **kw)
+        centres = [c.theta for c in gs.distinct(level1 + level2, 0.3, 5)]
+        level3 = gs.scan(p, sp, self.space, template, shapes=o.local_shapes, seed=o.seed + 2, around=centres,
+                         halfwidth=0.5, **kw)
+        found = gs.distinct(level1 + level2 + level3, 0.2)
+        self.report.scan = {"shapes": o.shapes + o.local_shapes * 10, "candidates": len(found),
+                            "best": [dict(zip(self.names, map(float, c.theta))) for c in found[:3]]}
+        return found
 
+    def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
+                  explore: bool = False) -> bool:
+        """One time-domain local fit (band stages, then the full band); True when accepted."""
+        o, p = self.options, self.problem
+        entry: dict = {"index": len(self.report.starts), "origin": origin,
+                       "start": dict(zip(self.names, map(float, theta)))}
+        if spectral_cost is not None:
+            entry["spectral_cost"] = spectral_cost
+        if explore:
+            if o.time_scale:
+                theta, c, n = align_time_scale(p, theta, o, points=max(11, o.time_scale_points // 2))
+                self.nfev += n
+                entry["time_scale"] = c
+            if o.coordinate_scan:
+                theta, n = coordinate_scan(p, theta, o)
+                self.nfev += n
+        path: list[dict] = []
+        for bf in self.filters if explore else []:
+            res = self.local_fit(p, theta, bf, o.stage_max_nfev, False)
+            self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
+            path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
+        # a start fitted in the frequency domain is next to its minimum: solve to full precision
+        precise = not explore and not origin.endswith("(as given)")
+        res = self.local_fit(p, theta, None, (10 if precise else 2) * o.stage_max_nfev, precise)
+        self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
+        res.trace = path + _stage_trace(res, "full band")
+        verdict = self.judge(res)
+        entry.update(end=dict(zip(self.names, map(float, res.theta))), cost=res.cost, verdict=verdict.as_dict(),
+                     residual_autocorrelation=verdict.whiteness)
+        self.report.starts.append(entry)
+        if self.best is None or res.cost < self.best.cost * (1 - 1e-9) - self.floor:
+            self.best, self.verdict, self.report.winner = res, verdict, entry["index"]
+        if self.progress:
+            self.progress.advance(1, f"best cost {self.best.cost:.4g}")
+        return verdict.accepted and self.best is res
 
-def align_time_scale(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int | None = None):
-    """Best time scale c for ``theta`` (free parameters scaled by c**e); returns (theta_c, c, nfev).
+    def judge(self, res: LocalResult) -> Verdict:
+        p, o = self.problem, self.options
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = p.y - p.predict(res.theta)
+        if res.cost <= self.floor:
+            v = judge(r, p.u, int(p.free.sum()), self.noise, significance=o.significance, lags=o.residual_lags)
+            return dataclasses.replace(v, accepted=True, reason="exact fit (cost at round-off level)")
+        return judge(r, p.u, int(p.free.sum()), self.noise, significance=o.significance,
+                     whiteness_threshold=o.whiteness_threshold if o.accept_white else np.inf,
+                     white_noise=p.noise_filter is None, lags=o.residual_lags)
 
-    Each grid point is scored by the residual after the best amplitude factor a:
-    min_a ||a yhat - y||^2 = ||y||^2 - (yhat.y)^2 / ||yhat||^2.
-    """
-    e = time_exponents(problem) * problem.free
-    if not np.any(e):
-        return theta, 1.0, 0
-    points = points or options.time_scale_points
-    r = options.time_scale_range
-    scales = np.exp(np.linspace(-np.log(r), np.log(r), points))
-    lo, hi = problem.lower, problem.upper
-    best, best_c, nfev = _explained_energy(problem, theta), 1.0, 1  # the start itself competes
-    for c in scales:
-        th = theta * c**e
-        if np.any(th < lo) or np.any(th > hi):
-            continue
-        score = _explained_energy(problem, th)
-        nfev += 1
-        if score > best:
-            best, best_c = score, float(c)
-    return theta * best_c**e, best_c, nfev
+    def fallback(self, out_of_time=lambda: False) -> bool:
+        """Sobol starts around the best minimum, aligned and scanned in the time domain."""
+        o, p = self.options, self.problem
+        if not o.fallback_starts or self.best is None:
+            return False
+        free = p.free & np.array([q.log_scale for q in p.parameters])
+        design = gs.sobol(max(int(free.sum()), 1), o.fallback_starts, o.seed)
+        anchor = self.best.theta
+        for row in design:
+            if out_of_time():
+                break
+            th = anchor.copy()
+            th[free] = anchor[free] * np.exp((2 * row[: free.sum()] - 1) * np.log(o.spread))
+            if self.try_start(np.clip(th, p.lower, p.upper), "fallback multi-start", explore=True):
+                return True
+        return False
 
-
-def _explained_energy(problem: FitProblem, theta: np.ndarray) -> float:
-    """(yhat . y)^2 / ||yhat||^2: the data energy a scaled model output explains."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        yhat = problem.predict(theta)
-    denom = float(yhat @ yhat)
-    if not np.isfinite(denom) or denom <= 0:
-        return -np.inf
-    return float(yhat @ problem.y) ** 2 / denom
-
-
-def coordinate_scan(problem: FitProblem, theta: np.ndarray, options: StrategyOptions, points: int = 16):
-    """Per-parameter log-grid scan (x/÷ spread) keeping each best point; returns (theta, nfev)."""
-    theta = theta.copy()
-    nfev = 0
-    factors = np.exp(np.linspace(-np.log(options.spread), np.log(options.spread), points))
-    best = _explained_energy(problem, theta)
-    for _ in range(options.coordinate_scan):
-        for i in np.flatnonzero(problem.free):
-            for f in factors:
-                trial = theta.copy()
-                trial[i] = theta[i] * f
-                if not (problem.lower[i] <= trial[i] <= problem.upper[i]):
-                    continue
-                score = _explained_energy(problem, trial)
-                nfev += 1
-                if score > best:
-                    best, theta = score, trial
-    return theta, nfev
+    def widen_if_on_edge(self, final: LocalResult) -> LocalResult:
+        """Refit with the region widened x/÷ 100 on every side an estimate ended on."""
+        o = self.options
+        for _ in range(o.widen):
+            lo, hi = self.problem.lower.copy(), self.problem.upper.copy()
+            movable = self.space.movable
+            low = movable & (final.theta <= lo * (1 + 1e-6))
+            high = movable & (final.theta >= hi * (1 - 1e-6))
+            if not (low.any() or high.any()):
+                break
+            lo[low], hi[high] = lo[low] / 100.0, hi[high] * 100.0
+            lo, hi = np.maximum(lo, self._hard[0]), np.minimum(hi, self._hard[1])
+            self.report.widened += [n for n, f in zip(self.names, low | high) if f]
+            self.problem = dataclasses.replace(self.problem, lower=lo, upper=hi)
+            self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
+            again = self.local_fit(self.problem, final.theta, None, 10 * o.stage_max_nfev, True)
+            self.nfev, self.njev = self.nfev + again.nfev, self.njev + again.njev
+            if again.cost <= final.cost:
+                again.trace = final.trace + _stage_trace(again, "widened region")
+                final = again
+        self.report.box = self._box_dict()
+        return final
 
 
 def search(
@@ -208,117 +307,87 @@ def search(
 ) -> tuple[LocalResult, SearchReport, int, int]:
     """Run the strategy; returns (best refined result, report, total nfev, total njev)."""
     t0 = time.perf_counter()
-    names = problem.names
-    if problem.initial is not None:
-        theta0, source = problem.full(np.asarray(problem.initial, float)[problem.free], problem.initial), "config"
-    else:
-        guess = problem.default_initial()
-        theta0, source = problem.full(np.asarray(guess, float)[problem.free], guess), "model.initial_guess"
-    theta0 = np.clip(theta0, problem.lower, problem.upper)
-    report = SearchReport(source, dict(zip(names, map(float, theta0))))
-    problem = boxed(problem, theta0, options.search_box)
-    report.box = {"lower": dict(zip(names, map(float, problem.lower))), "upper": dict(zip(names, map(float, problem.upper)))}
-
-    f_sig = signal_bandwidth(problem.y, problem.dt)
-    report.signal_bandwidth_hz = f_sig
-    filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
-    report.bands_hz = [bf.cutoff_hz for bf in filters]
-
-    nfev = njev = 0
-    anchor = theta0
-    if options.time_scale:
-        anchor, c, n = align_time_scale(problem, theta0, options)
-        nfev += n
-        report.aligned, report.time_scale = dict(zip(names, map(float, anchor))), c
-
-    starts = [anchor]
-    if options.n_starts > 1:
-        free = problem.free
-        sampler = qmc.Sobol(d=int(free.sum()), scramble=True, seed=options.seed)
-        design = sampler.random(int(2 ** np.ceil(np.log2(max(options.n_starts - 1, 1)))))[: options.n_starts - 1]
-        for row in design:
-            th = anchor.copy()
-            th[free] = anchor[free] * np.exp((2 * row - 1) * np.log(options.spread))
-            starts.append(np.clip(th, problem.lower, problem.upper))
-
+    s = _Search(problem, local_fit, options, progress)
+    o = options
+    seeds = s.seeds()
+    silent = residual_input_test(problem.y - problem.y.mean(), problem.u, 0).p_value > o.significance
+    if silent:  # no response to the input in the record: nothing a wider search could find
+        o = options.model_copy(update={"n_starts": 1, "global_search": False, "fallback_starts": 0, "widen": 0})
+        s.options = o
+        s.report.scan = {"skipped": "no response to the input is detectable in the record"}
+    s.report.initial_source, s.report.initial = seeds[0][0], dict(zip(s.names, map(float, seeds[0][1])))
     if progress:
-        progress.start("global search (starts)", total=len(starts))
-    best: LocalResult | None = None
-    confirmations = 0
-    floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
-    for k, start in enumerate(starts):
-        entry = {"index": k, "start": dict(zip(names, map(float, start)))}
-        if k > 0 and options.time_scale:
-            start, c, n = align_time_scale(problem, start, options, points=max(11, options.time_scale_points // 2))
-            nfev += n
-            entry["time_scale"] = c
-        if options.coordinate_scan:
-            start, n = coordinate_scan(problem, start, options)
-            nfev += n
-            entry["scanned"] = dict(zip(names, map(float, start)))
-        res = None
-        theta = start
-        path: list[dict] = []
-        for bf in filters:
-            res = local_fit(problem, theta, bf, options.stage_max_nfev, False)
-            nfev, njev, theta = nfev + res.nfev, njev + res.njev, res.theta
-            path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
-        res = local_fit(problem, theta, None, 2 * options.stage_max_nfev, False)
-        nfev, njev = nfev + res.nfev, njev + res.njev
-        res.trace = path + _stage_trace(res, "full band")
-        entry.update(end=dict(zip(names, map(float, res.theta))), cost=res.cost)
-        report.starts.append(entry)
-        if best is None or res.cost < best.cost * (1 - 1e-9) - floor:
-            same = best is not None and _same_minimum(best, res, floor)
-            best, report.winner = res, k
-            confirmations = 2 if same else 1
-        elif _same_minimum(best, res, floor):
-            confirmations += 1
-        entry["residual_autocorrelation"] = res_white = residual_whiteness(problem, res.theta)
-        if progress:
-            progress.advance(1, f"best cost {best.cost:.4g}")
-        if options.confirm and confirmations >= options.confirm:
-            report.accepted_because = f"{confirmations} starts reached the same minimum"
-            break
-        if options.accept_white and best is res and res_white < options.whiteness_threshold:
-            report.accepted_because = f"white residuals (mean |autocorrelation| {res_white:.3g})"
-            break
-        if best is res and res.cost <= floor:
-            report.accepted_because = "exact fit (cost at round-off level)"
-            break
+        progress.start("global search (starts)", total=o.n_starts)
+    accepted = False
+    spectral_ok = s.space.movable.any()
+    # 1. the physics-based starts, fitted in the frequency domain first
+    queue = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
+    if spectral_ok:
+        queue += s.seed_candidates(seeds)
     else:
-        report.accepted_because = f"best of {len(starts)} starts (budget spent)"
-    report.confirmed_by = confirmations
+        queue += [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
+    tried = 0
+    out_of_time = lambda: time.perf_counter() - t0 > o.time_budget  # noqa: E731
+    for c in queue:
+        if tried >= o.n_starts or (tried and out_of_time()):
+            break
+        tried += 1
+        if s.try_start(c.theta, c.origin, c.cost):
+            accepted = True
+            break
+    # 2. the whole region
+    if not accepted and o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
+        found = s.candidates_from(s.scan(), o.spectral_candidates)
+        for c in found:
+            if tried >= o.n_starts or out_of_time():
+                break
+            if s.best is not None and _near(c.theta, s.best.theta):
+                continue
+            tried += 1
+            if s.try_start(c.theta, "scan", c.cost):
+                accepted = True
+                break
+    # 3. last resort: around the best minimum
+    if not accepted and not out_of_time():
+        accepted = s.fallback(lambda: out_of_time())
     if progress:
         progress.stop()
-
-    final = local_fit(problem, best.theta, None, 50 * options.stage_max_nfev, True)
-    nfev, njev = nfev + final.nfev, njev + final.njev
+    best = s.best
+    v = s.verdict
+    s.report.accepted = bool(accepted)
+    s.report.verdict = v.as_dict() if v is not None else None
+    s.report.accepted_because = v.reason if accepted and v is not None else (
+        f"not confirmed: best of {len(s.report.starts)} starts; {v.reason if v is not None else 'no start'}")
+    final = local_fit(s.problem, best.theta, None, 10 * o.stage_max_nfev, True)
+    s.nfev, s.njev = s.nfev + final.nfev, s.njev + final.njev
     if final.cost > best.cost:  # refinement never makes things worse
         final = best
     else:
         final.trace = best.trace + _stage_trace(final, "refinement")
+    final = s.widen_if_on_edge(final)
     for i, rec in enumerate(final.trace):
         rec["iteration"] = i
-    report.wall_time_s = time.perf_counter() - t0
-    return final, report, nfev, njev
+    s.report.wall_time_s = time.perf_counter() - t0
+    return final, s.report, s.nfev, s.njev
 
 
-def boxed(problem: FitProblem, theta0: np.ndarray, factor: float) -> FitProblem:
-    """The problem with log-scale parameters confined to theta0 x/÷ factor (within its bounds).
-
-    A parameter the data barely see can otherwise run away by many decades during a local
-    solve and drag the fit into a remote, flat region."""
-    lower, upper = problem.lower.copy(), problem.upper.copy()
+def _around(problem: FitProblem, theta0: np.ndarray, factor: float, lo: np.ndarray, hi: np.ndarray):
+    """Bounds confining log-scale parameters to theta0 x/÷ factor (within lo, hi)."""
+    lo, hi = lo.copy(), hi.copy()
     for i, p in enumerate(problem.parameters):
         if p.log_scale and theta0[i] > 0:
-            lower[i] = max(lower[i], theta0[i] / factor)
-            upper[i] = min(upper[i], theta0[i] * factor)
-    return dataclasses.replace(problem, lower=lower, upper=upper)
+            lo[i] = max(lo[i], theta0[i] / factor)
+            hi[i] = min(hi[i], theta0[i] * factor)
+    return lo, hi
+
+
+def _near(a: np.ndarray, b: np.ndarray, rtol: float = 0.02) -> bool:
+    pos = (a > 0) & (b > 0)
+    return bool(np.all(np.abs(np.log(a[pos] / b[pos])) <= rtol))
 
 
 def at_box_edge(report: dict, theta: dict[str, float], rtol: float = 1e-3) -> list[str]:
-    """Names of parameters that ended on the edge of the search box."""
+    """Names of parameters that ended on the edge of the search region."""
     box = report.get("box") or {}
     out = []
     for name, value in theta.items():
@@ -335,28 +404,6 @@ def _stage_trace(res: LocalResult, stage: str) -> list[dict]:
 
     Costs of band stages are those of the band-limited residual."""
     return [dict(rec, stage=stage) for rec in res.trace]
-
-
-def residual_whiteness(problem: FitProblem, theta: np.ndarray, lags: int = 10) -> float:
-    """Mean |normalised autocorrelation| of the residual y - yhat at lags 1..``lags``.
-
-    About 0.8/sqrt(N) for white noise; near 1 when a structured misfit is left (a local
-    minimum of a wave model leaves a delayed or mistuned copy of the signal).
-    """
-    with np.errstate(over="ignore", invalid="ignore"):
-        r = problem.y - problem.predict(theta)
-    if not np.all(np.isfinite(r)):
-        return np.inf
-    return residual_autocorrelation(r, lags)
-
-
-def residual_autocorrelation(r: np.ndarray, lags: int = 10) -> float:
-    """Mean |normalised autocorrelation| of residuals r at lags 1..``lags``."""
-    r = np.asarray(r, dtype=float) - np.mean(r)
-    denom = float(r @ r)
-    if denom <= 0 or not np.isfinite(denom):
-        return 0.0
-    return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
 
 
 def _same_minimum(a: LocalResult, b: LocalResult, floor: float = 0.0, rtol: float = 1e-3) -> bool:

@@ -118,6 +118,19 @@ class IdentifiabilityConfig(_Strict):
     max_residual_autocorrelation: float = Field(
         0.2, gt=0, description="mean |autocorrelation| of residuals (lags 1-10) above this is flagged as misfit"
     )
+    min_explained_variance: float = Field(
+        0.25, ge=0, lt=1, description="a fit explaining less of the record's variance marks every parameter unreliable"
+    )
+
+
+class UncertaintyConfig(_Strict):
+    """``uncertainty``: what the run computes besides the linearised intervals."""
+
+    profile: bool = Field(False, description="also compute profile-likelihood intervals (one local fit per point)")
+    level: float = Field(0.95, gt=0, lt=1, description="confidence level of the profile intervals")
+    profile_tolerance: float = Field(
+        0.25, gt=0, description="flag a profile interval whose ends differ from the linearised ones by more than "
+        "this fraction of the linearised half-width")
 
 
 class OutputConfig(_Strict):
@@ -141,6 +154,7 @@ class RunConfig(_Strict):
     solver: SolverRef = Field(default_factory=SolverRef)
     nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
+    uncertainty: UncertaintyConfig = Field(default_factory=UncertaintyConfig)
     calibration: dict[str, Any] | None = Field(
         None, description="makes the run a transducer calibration (see mbus_framework.studies.transducer_calibration)"
     )

@@ -11,6 +11,7 @@ from mbus_framework import __version__
 from mbus_framework.estimation.nuisance import DELAY, GAIN
 from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
+from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -130,10 +131,13 @@ def build_result(
         result["compensation"] = compensation
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
-    result["warnings"] = measurement_warnings(m) + identifiability_warnings(result, c.config.identifiability, fit)
+    measured = measurement_warnings(m)
+    result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance)
+    result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
+    result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
         result["warnings"].insert(
-            0,
+            len(measured) + int(not result["fit"]["reliable"]),
             f"the residuals are not white (mean |autocorrelation| {whiteness:.2f}): the model does not explain "
             f"the data (model mismatch, transducer dynamics or a local minimum); the estimates are biased",
         )
@@ -172,16 +176,17 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
     if not fit.success:
         out.append(f"the solver did not report convergence ({fit.message}); treat the estimates with care")
     strategy = result.get("strategy") or {}
-    if strategy.get("accepted_because", "").startswith("best of"):
+    if strategy and not strategy.get("accepted", True):
         out.append(
-            "the global minimum is not confirmed: no start left white residuals and no two starts agreed "
-            "(model mismatch, coloured noise, or a multimodal cost); consider more starts or another model"
+            "the global minimum is not confirmed: "
+            + str((strategy.get("verdict") or {}).get("reason") or "no start left a residual consistent with the noise")
+            + "; the estimates may be a local minimum (or the model does not describe the data)"
         )
     edge = at_box_edge(strategy, result["parameters"])
     if edge:
         out.append(
-            f"{_join(edge)} ended on the edge of the search box (the initial value x/÷ the strategy's "
-            f"search_box): the data do not pin {'it' if len(edge) == 1 else 'them'} down"
+            f"{_join(edge)} ended on the edge of the search region (the plausible material range, widened "
+            f"where needed): the data do not pin {'it' if len(edge) == 1 else 'them'} down"
         )
     unc = result.get("uncertainty")
     if not unc:

@@ -102,6 +102,7 @@ def make_problem(c: Components, m: Measurement) -> FitProblem:
         hold=c.config.model.hold,
         output_filter=c.compensator.output_filter(),
         nuisance=nuisance,
+        noise_filter=c.compensator.noise_filter(),
     )
 
 

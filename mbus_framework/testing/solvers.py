@@ -38,16 +38,19 @@ CONTRACT_PROPERTIES = {"E_sigma": 2.5e9, "eta_sigma": 150.0, "E_tau": 6.0e8, "et
 START_FACTORS = np.array([1.2, 0.8, 1.25, 0.85])
 
 
-def binary_record(n: int, bit: int, seed: int) -> np.ndarray:
-    """Random +-1 sequence with bits ``bit`` samples long (a PRBS stand-in)."""
+def binary_record(n: int, bit: int, seed: int, period: int | None = None) -> np.ndarray:
+    """Random +-1 sequence with bits ``bit`` samples long (a PRBS stand-in); with ``period``,
+    its first ``period`` samples repeated (for solvers that need a periodic record)."""
     rng = np.random.default_rng(seed)
-    return np.repeat(rng.choice([-1.0, 1.0], n // bit + 1), bit)[:n]
+    u = np.repeat(rng.choice([-1.0, 1.0], n // bit + 1), bit)[:n]
+    return u if period is None else np.tile(u[:period], n // period + 1)[:n]
 
 
 def contract_problem(n_samples: int = 600, n_elements: int = 3, seed: int = 4, registry=None,
-                     **kw) -> tuple[FitProblem, np.ndarray]:
-    """(noise-free problem, truth) of the registered ``kelvin_voigt`` chain; ``kw`` go to
-    :class:`FitProblem` (initial, fixed, lower, upper, ...)."""
+                     periodic: bool = False, **kw) -> tuple[FitProblem, np.ndarray]:
+    """(noise-free problem, truth) of the registered ``kelvin_voigt`` chain; ``periodic``: the
+    input repeats every n_samples/4 samples; ``kw`` go to :class:`FitProblem` (initial,
+    fixed, lower, upper, ...)."""
     if registry is None:
         from mbus_framework.interfaces.registry import default_registry
 
@@ -57,7 +60,7 @@ def contract_problem(n_samples: int = 600, n_elements: int = 3, seed: int = 4, r
     truth = model.from_properties(CONTRACT_PROPERTIES)
     lam = np.linalg.eigvals(as_float_ss(model.state_space(truth)).A)
     dt = 0.12 / float(np.max(np.abs(lam)))
-    u = binary_record(n_samples, 8, seed)
+    u = binary_record(n_samples, 8, seed, n_samples // 4 if periodic else None)
     t = np.arange(n_samples) * dt
     y = simulate(model, truth, u, dt)
     return FitProblem(model, t, u, y, **kw), truth
@@ -94,7 +97,11 @@ class SolverContract:
 
     def make_problem(self, **kw) -> tuple[FitProblem, np.ndarray]:
         """(noise-free problem, truth); ``kw`` (initial, fixed, lower, upper) go to FitProblem."""
-        return contract_problem(registry=self.get_registry(), **kw)
+        spec = self.get_registry().get("solver", self.solver_name)
+        periodic = bool(getattr(spec.implementation, "periodic_records", False))
+        if periodic:  # 4 periods of 300 samples: enough lines for the transient projection
+            kw.setdefault("n_samples", 1200)
+        return contract_problem(registry=self.get_registry(), periodic=periodic, **kw)
 
     def _fit(self, **kw) -> tuple[FitProblem, np.ndarray, FitResult]:
         problem, truth = self.make_problem(**kw)

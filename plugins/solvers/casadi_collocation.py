@@ -851,8 +851,10 @@ class _Session:
         # the refinement of an earlier local solve's result starts at or next to a minimum
         warm = final and any(np.array_equal(theta0, r) for r in self.results)
         t0 = time.perf_counter()
-        # bounds from the problem handed in (the strategy narrows them to its search box)
-        theta, stats, w, fobj, records, reason = nlp.solve(sd, problem.lower, problem.upper, max_iter,
+        # the problem's own bounds (the user's), not the strategy's search region: finite region
+        # bounds on the NLP variables make IPOPT's barrier creep along flat valleys (a Maxwell
+        # series spring running to the bound); the region bounds the starts only
+        theta, stats, w, fobj, records, reason = nlp.solve(sd, p.lower, p.upper, max_iter,
                                                            *((o.xtol, o.ftol) if final else (o.stage_xtol, o.stage_ftol)),
                                                            warm=warm)
         self.results.append(theta)

@@ -1,0 +1,193 @@
+"""Frequency responses of a medium model, with exact parameter derivatives.
+
+Two responses of the continuous SISO model dz/dt = A z + B u, y = C z + D u:
+
+* continuous   G(s) = C (sI - A)^-1 B + D,  s = i 2 pi f;
+* ZOH-sampled  H(z) = C (zI - e^{Ah})^-1 Gamma0 + D,  Gamma0 = h phi_1(Ah) B,  z = e^{i 2 pi f h}:
+  the exact ratio Y_k / U_k of the lines of a periodic steady state sampled every h seconds
+  with the input held between samples (what :mod:`mbus_framework.engine.simulation` simulates).
+
+Both are C f(A) B + D for a scalar function of an eigenvalue,
+
+    continuous  f(lam) = 1 / (s - lam),        zoh  f(lam) = h phi_1(lam h) / (z - e^{lam h}),
+
+so with the balanced eigendecomposition A = T V diag(lam) W T^-1 (``simulation.modal_form``)
+H = cb diag(f(lam)) bb + D, and by the Daleckii-Krein formula the derivative along dA, dB, dC is
+
+    dH = (dC T V) diag(f) bb + cb diag(f) (W T^-1 dB) + cb (F o (W T^-1 dA T V)) bb + dD,
+    F_ij = (f(lam_i) - f(lam_j)) / (lam_i - lam_j),   F_ii = f'(lam_i).
+
+dA, dB, dC, dD come from complex-step differentiation of the model's ``state_space``. When
+the eigenvectors are ill conditioned (nearly defective models), or the modal terms cancel to
+round-off at a frequency, the response is computed by a direct solve per frequency and the
+Jacobian by central differences.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mbus_framework.engine.simulation import (
+    MODAL_MAX_CONDITION,
+    ModalForm,
+    as_float_ss,
+    modal_form,
+    state_space_derivatives,
+)
+from mbus_framework.interfaces.model import MediumModel
+
+#: Relative eigenvalue gap below which a divided difference is replaced by the derivative.
+_CLOSE = 1e-7
+
+
+def modal_response(mf: ModalForm, s: np.ndarray) -> np.ndarray:
+    """Continuous G(s) = D + sum_i r_i / (s - lam_i) from a modal form, any complex s."""
+    r = mf.cb * mf.bb
+    return mf.d + (r[None, :] / (np.asarray(s)[:, None] - mf.lam[None, :])).sum(axis=1)
+
+
+def _point_values(lam: np.ndarray, f: np.ndarray, dt: float | None):
+    """f(lam) and f'(lam) per (frequency, mode), shape (F, n)."""
+    if dt is None:
+        d = 2j * np.pi * f[:, None] - lam[None, :]
+        return 1.0 / d, 1.0 / d**2
+    x = lam * dt
+    E = np.exp(x)
+    small = np.abs(x) <= 1e-8
+    safe = np.where(small, 1.0, lam)
+    K = np.where(small, dt * (1 + x / 2), np.expm1(x) / safe)
+    dK = np.where(small, dt * dt / 2 * (1 + x / 1.5), (E * dt - K) / safe)
+    den = np.exp(2j * np.pi * f * dt)[:, None] - E[None, :]
+    return K[None, :] / den, dK[None, :] / den + K[None, :] * dt * E[None, :] / den**2
+
+
+def _fdk_term(lam, val, der, q, dt) -> np.ndarray:
+    """sum_ij q_ij F_ij per frequency, F the divided differences of f (module docstring).
+
+    Continuous: F_ij = f_i f_j exactly, so the sum is the quadratic form (val q) . val.
+    ZOH: F_ij = (f_i - f_j) / (lam_i - lam_j) off the diagonal, f'_i on it (and on nearly
+    equal pairs), which splits into O(F n) sums."""
+    if dt is None:
+        return ((val @ q) * val).sum(axis=1)
+    gap = lam[:, None] - lam[None, :]
+    scale = np.maximum(np.maximum(np.abs(lam)[:, None], np.abs(lam)[None, :]), 1.0 / dt)
+    close = np.abs(gap) <= _CLOSE * scale
+    Q = np.where(close, 0.0, q / np.where(close, 1.0, gap))
+    out = val @ Q.sum(axis=1) - val @ Q.sum(axis=0)
+    for i, j in zip(*np.nonzero(close)):
+        out = out + q[i, j] * 0.5 * (der[:, i] + der[:, j])
+    return out
+
+
+def response(model: MediumModel, theta, f, dt: float | None = None) -> np.ndarray:
+    """H(f): continuous (``dt`` None) or ZOH-sampled at interval ``dt`` [s]."""
+    f = np.atleast_1d(np.asarray(f, dtype=float))
+    ss = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
+    mf = modal_form(ss)
+    if mf is None or mf.kappa > MODAL_MAX_CONDITION:
+        return _direct_response(ss, f, dt)
+    val, _ = _point_values(mf.lam, f, dt)
+    terms = val * (mf.cb * mf.bb)[None, :]
+    H = mf.d + terms.sum(axis=1)
+    bad = _cancelling(terms, H)
+    if bad.any():  # modal terms cancel to round-off there: solve those frequencies directly
+        H[bad] = _direct_response(ss, f[bad], dt)
+    return H
+
+
+def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(H (F,), dH/dtheta (F, p)) at frequencies ``f`` [Hz]; see the module docstring."""
+    theta = np.asarray(theta, dtype=float)
+    f = np.atleast_1d(np.asarray(f, dtype=float))
+    ss = as_float_ss(model.state_space(theta))
+    mf = modal_form(ss)
+    if mf is None or mf.kappa > MODAL_MAX_CONDITION:
+        return _finite_difference(model, theta, f, dt)
+    val, der = _point_values(mf.lam, f, dt)
+    terms = val * (mf.cb * mf.bb)[None, :]
+    H = mf.d + terms.sum(axis=1)
+    if _cancelling(terms, H).any():
+        return _finite_difference(model, theta, f, dt)
+    T = mf.scale
+    J = np.empty((f.size, theta.size), dtype=complex)
+    for p, dss in enumerate(state_space_derivatives(model, theta)):
+        dA, dB, dC, dD = (np.atleast_2d(np.asarray(m, dtype=float)) for m in dss)
+        dcb = (dC[0] * T) @ mf.V
+        dbb = mf.W @ (dB[:, 0] / T)
+        M = mf.W @ ((dA * T[None, :]) / T[:, None]) @ mf.V
+        q = mf.cb[:, None] * M * mf.bb[None, :]
+        J[:, p] = (
+            (val * (dcb * mf.bb + mf.cb * dbb)[None, :]).sum(axis=1)
+            + _fdk_term(mf.lam, val, der, q, dt)
+            + float(dD[0, 0])
+        )
+    return H, J
+
+
+def _cancelling(terms: np.ndarray, H: np.ndarray, limit: float = 1e3) -> np.ndarray:
+    """Frequencies where the modal sum loses more than log10(limit) digits to cancellation:
+    sum |terms| / |H| > limit (a nearly defective model, or a response far below its modes)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(terms).sum(axis=1) > limit * np.abs(H)
+
+
+def _direct_response(ss, f: np.ndarray, dt: float | None) -> np.ndarray:
+    """One batched solve per frequency (safe for defective models)."""
+    A, B, C, D = ss
+    if dt is None:
+        s = 2j * np.pi * f
+    else:
+        from mbus_framework.engine.simulation import discretize
+
+        sys = discretize(ss, float(dt), "zoh")
+        A, B = sys.Phi, sys.Gamma.reshape(-1, 1)
+        s = np.exp(2j * np.pi * f * float(dt))
+    n = A.shape[0]
+    M = s[:, None, None] * np.eye(n)[None] - A[None]
+    x = np.linalg.solve(M, np.broadcast_to(B.astype(complex), (s.size, n, 1)))[..., 0]
+    return x @ C[0].astype(complex) + D[0, 0]
+
+
+def _finite_difference(model, theta, f, dt) -> tuple[np.ndarray, np.ndarray]:
+    H = _direct_response(as_float_ss(model.state_space(theta)), f, dt)
+    J = np.empty((f.size, theta.size), dtype=complex)
+    for p in range(theta.size):
+        h = 1e-6 * (abs(theta[p]) or 1.0)
+        up, dn = theta.copy(), theta.copy()
+        up[p] += h
+        dn[p] -= h
+        J[:, p] = (
+            _direct_response(as_float_ss(model.state_space(up)), f, dt)
+            - _direct_response(as_float_ss(model.state_space(dn)), f, dt)
+        ) / (2 * h)
+    return H, J
+
+
+def tail_basis(model: MediumModel, theta, f, dt: float, n_samples: int) -> np.ndarray:
+    """(F, n) transforms of the free responses that continue past the end of a record.
+
+    A record y[0..N-1] of a system started at rest differs from the transform of its
+    never-ending response by the tail y[N + m] = C Phi^m x_N (Phi = e^{Ah}), whose transform is
+
+        e^{-i w N} C (I - Phi e^{-i w})^-1 x_N = sum_k x_N,k b_k(w),   w = 2 pi f h,
+
+    linear in the unknown end state x_N. Column k is b_k; modal form when safe, else a direct
+    solve per frequency."""
+    theta = np.asarray(theta, dtype=float)
+    f = np.atleast_1d(np.asarray(f, dtype=float))
+    ss = as_float_ss(model.state_space(theta))
+    w = 2 * np.pi * f * dt
+    shift = np.exp(-1j * w * n_samples)[:, None]
+    mf = modal_form(ss)
+    if mf is not None and mf.kappa <= MODAL_MAX_CONDITION:
+        E = np.exp(np.clip((mf.lam * dt).real, None, 700) + 1j * (mf.lam * dt).imag)
+        modal = 1.0 / (1.0 - E[None, :] * np.exp(-1j * w)[:, None])
+        coupling = (mf.cb[:, None] * mf.W) / mf.scale[None, :]  # cb_i (W T^-1)_ik
+        return shift * (modal @ coupling)
+    from mbus_framework.engine.simulation import discretize
+
+    Phi = discretize(ss, float(dt), "zoh").Phi
+    n = Phi.shape[0]
+    M = np.eye(n)[None] - Phi[None] * np.exp(-1j * w)[:, None, None]
+    rhs = np.broadcast_to(ss.C[0].astype(complex), (f.size, n))[..., None]  # stacked vectors (numpy 2)
+    rows = np.linalg.solve(np.transpose(M, (0, 2, 1)), rhs)[..., 0]
+    return shift * rows
