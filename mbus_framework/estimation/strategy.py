@@ -16,7 +16,10 @@ medium model and any local solver (``local_fit``):
    (:mod:`mbus_framework.estimation.global_search`). Each start is fitted in the frequency
    domain (shape and time scale first, response level last, the record's unfinished tail
    projected out), so candidates arrive ranked by an exact spectral cost.
-3. **Time-domain local fits** from the candidates, best first, at most ``n_starts`` of them.
+3. **Time-domain local fits** from the candidates, best first, at most ``n_starts`` of them;
+   when none is accepted, up to ``pole_starts`` more from parameters whose poles match the
+   record's subspace-identified poles (:mod:`mbus_framework.estimation.poles`): a lightly
+   damped chain rings in lines narrower than the scan's grid.
 4. **Acceptance by the noise level, not by whiteness alone** (:mod:`mbus_framework.estimation.acceptance`):
    a minimum is accepted when no input-related structure is left in its residual (an F test
    of a model-free FIR fit), its variance agrees with the repeated periods' noise when the
@@ -50,6 +53,7 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
     time_exponents,
 )
 from mbus_framework.estimation.local import LocalResult
+from mbus_framework.estimation.poles import pole_candidates
 from mbus_framework.estimation.problem import FitProblem, Progress
 from mbus_framework.estimation.spectral import record_spectrum
 
@@ -70,6 +74,9 @@ class StrategyOptions(BaseModel):
     spectral_candidates: int = Field(4, ge=1, description="scan candidates fitted in the frequency domain")
     amplitude_penalty: float = Field(1e-3, ge=0, description="weight of the response-level mismatch in the scan")
     n_starts: int = Field(6, ge=1, description="maximum number of time-domain local fits from the candidates")
+    pole_starts: int = Field(3, ge=0, description="time-domain fits from starts whose poles match the record's "
+                                                  "subspace-identified poles (lightly damped chains), when the "
+                                                  "scan's were not accepted")
     fallback_starts: int = Field(6, ge=0, description="multi-start around the best minimum when none was accepted")
     bands: list[float] = Field(
         default_factory=lambda: [0.3],
@@ -116,6 +123,7 @@ class SearchReport:
     verdict: dict | None = None
     noise: dict | None = None
     scan: dict | None = None
+    poles: dict | None = None
     box: dict | None = None
     widened: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
@@ -194,8 +202,7 @@ class _Search:
     def scan(self) -> list[gs.Candidate]:
         """The multi-level shape x scale scan over the whole region (best distinct first)."""
         o, p, sp = self.options, self.problem, self.spectrum
-        template = np.clip(p.full(np.array([q.typical for q in p.parameters])[p.free], p.default_initial()),
-                           p.lower, p.upper)
+        template = self.template()
         kw = dict(amplitude_penalty=o.amplitude_penalty)
         level1 = gs.scan(p, sp, self.space, template, shapes=o.shapes, seed=o.seed, **kw)
         centres = [c.theta for c in gs.distinct(level1, 0.5, 5)] + [th for _, th in self.seeds()]
@@ -209,6 +216,19 @@ class _Search:
         found = gs.distinct(level1 + level2 + level3, 0.2)
         self.report.scan = {"shapes": o.shapes + o.local_shapes * 10, "candidates": len(found),
                             "best": [dict(zip(self.names, map(float, c.theta))) for c in found[:3]]}
+        return found
+
+    def template(self) -> np.ndarray:
+        """Typical values (the model's guess for parameters without one), within the box."""
+        p = self.problem
+        return np.clip(p.full(np.array([q.typical for q in p.parameters])[p.free], p.default_initial()),
+                       p.lower, p.upper)
+
+    def pole_candidates(self) -> list[gs.Candidate]:
+        """Starts matched to the record's subspace-identified poles (:mod:`.poles`)."""
+        o = self.options
+        found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed)
+        self.report.poles = {"candidates": [dict(zip(self.names, map(float, c.theta))) for c in found]}
         return found
 
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
@@ -312,7 +332,8 @@ def search(
     seeds = s.seeds()
     silent = residual_input_test(problem.y - problem.y.mean(), problem.u, 0).p_value > o.significance
     if silent:  # no response to the input in the record: nothing a wider search could find
-        o = options.model_copy(update={"n_starts": 1, "global_search": False, "fallback_starts": 0, "widen": 0})
+        o = options.model_copy(update={"n_starts": 1, "global_search": False, "pole_starts": 0, "fallback_starts": 0,
+                                       "widen": 0})
         s.options = o
         s.report.scan = {"skipped": "no response to the input is detectable in the record"}
     s.report.initial_source, s.report.initial = seeds[0][0], dict(zip(s.names, map(float, seeds[0][1])))
@@ -347,7 +368,17 @@ def search(
             if s.try_start(c.theta, "scan", c.cost):
                 accepted = True
                 break
-    # 3. last resort: around the best minimum
+    # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
+    if not accepted and o.global_search and o.pole_starts and spectral_ok and not out_of_time():
+        for c in s.pole_candidates():
+            if out_of_time():
+                break
+            if s.best is not None and _near(c.theta, s.best.theta, 1e-3):
+                continue
+            if s.try_start(c.theta, "record poles"):
+                accepted = True
+                break
+    # 4. last resort: around the best minimum
     if not accepted and not out_of_time():
         accepted = s.fallback(lambda: out_of_time())
     if progress:

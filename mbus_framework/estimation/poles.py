@@ -1,0 +1,225 @@
+"""Starts from the record's poles: subspace identification, then matching the model's poles.
+
+A lightly damped chain (damping ratios 1e-4 to 1e-2) rings at its modes for the whole record:
+every mode is a spectral line a fraction of a per cent wide. The output-error cost then has a
+basin a fraction of a per cent wide along the time scale *and* along every stiffness ratio
+(the ratios set the spacing of the modes), which a scan of the spectral cost on a
+logarithmic grid (:mod:`~mbus_framework.estimation.global_search`) cannot resolve, all the
+more when modes lie above the Nyquist frequency and alias. The record's poles locate that
+basin directly:
+
+1. **Record poles, model-free.** PO-MOESP subspace identification (Verhaegen 1994) of a
+   discrete state-space model of the model's order from (u, y): the past inputs and outputs
+   are the instruments, so white output noise does not bias the poles. Its eigenvalues
+   z_i are the record's discrete poles (aliasing included: z = e^{s h}).
+2. **Frequency pattern.** With every damping-like parameter at its least value, a fine design
+   over the stiffness ratios (the shape directions of the parameters with the largest time
+   exponent) gives the undamped pole pattern s_j; scaling time by c moves every angle to
+   c Im(s_j) h. The scales at which one model angle lands on one measured angle (modulo 2 pi,
+   folded into [0, pi]) are enumerated exactly, and each is scored by the capped angle
+   distance of every measured pole to its nearest model pole.
+3. **All parameters.** The best patterns are refined by least squares on the capped complex
+   distances |z_i - e^{s_j(theta) h}| in ln theta (dampings from the pole radii).
+
+The candidates then start time-domain fits (:mod:`~mbus_framework.estimation.strategy`),
+which accept or reject them by the noise level like any other start.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from mbus_framework.estimation.global_search import Candidate, SearchSpace, distinct, sobol
+
+#: Largest angle distance [rad] a measured pole contributes (a pole the model cannot explain).
+ANGLE_CAP = 0.05
+#: Largest complex distance a measured pole contributes in the refinement.
+POLE_CAP = 0.05
+
+
+def _block_hankel(x: np.ndarray, rows: int, cols: int, start: int) -> np.ndarray:
+    return np.lib.stride_tricks.sliding_window_view(x[start:start + rows + cols - 1], cols)[:rows]
+
+
+def record_poles(u: np.ndarray, y: np.ndarray, order: int, horizon: int | None = None) -> np.ndarray:
+    """Discrete poles of a PO-MOESP state-space model of ``order`` identified from (u, y).
+
+    ``horizon`` s (default max(2 order, order + 10)) block rows of past and future data;
+    the extended observability matrix is the leading ``order`` left singular vectors of the
+    part of the future outputs explained by past inputs and outputs after the future inputs
+    are removed (LQ factorisation), and A follows from its shift invariance."""
+    u = np.asarray(u, float).ravel()
+    y = np.asarray(y, float).ravel()
+    s = int(horizon or max(2 * order, order + 10))
+    cols = len(u) - 2 * s + 1
+    if order < 1 or cols < 4 * s:
+        return np.empty(0, complex)
+    su, sy = float(np.std(u)), float(np.std(y))
+    if not (su > 0 and sy > 0 and np.isfinite(su) and np.isfinite(sy)):
+        return np.empty(0, complex)
+    u, y = u / su, y / sy
+    M = np.vstack([_block_hankel(u, s, cols, s), _block_hankel(u, s, cols, 0),
+                   _block_hankel(y, s, cols, 0), _block_hankel(y, s, cols, s)])
+    L = np.linalg.qr(M.T, mode="r").T
+    L32 = L[3 * s:, s:3 * s]
+    U, sv, _ = np.linalg.svd(L32, full_matrices=False)
+    G = U[:, :order] * sv[:order]
+    A = np.linalg.lstsq(G[:-1], G[1:], rcond=None)[0]
+    z = np.linalg.eigvals(A)
+    return z[np.isfinite(z) & (np.abs(z) < 1.0)]
+
+
+def _continuous_poles(model, theta: np.ndarray) -> np.ndarray:
+    with np.errstate(all="ignore"):
+        A = np.asarray(model.state_space(theta)[0], float)
+        if not np.all(np.isfinite(A)):
+            return np.empty(0, complex)
+        return np.linalg.eigvals(A)
+
+
+def _fold(angle: np.ndarray) -> np.ndarray:
+    """Angles folded into [0, pi] (a pole and its conjugate, aliasing included)."""
+    return np.abs(np.mod(angle + np.pi, 2 * np.pi) - np.pi)
+
+
+def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_hi: float) -> np.ndarray:
+    """ln c at which some c omega_j h equals some +-phi_i modulo 2 pi, within [lnc_lo, lnc_hi]."""
+    out = []
+    c_lo, c_hi = np.exp(lnc_lo), np.exp(lnc_hi)
+    for w in omega_h[omega_h > 0]:
+        k_hi = int(np.floor(c_hi * w / (2 * np.pi))) + 1
+        if k_hi > 64:  # more aliases than a record can tell apart
+            k_lo = int(np.floor(c_lo * w / (2 * np.pi)))
+            if k_hi - k_lo > 64:
+                continue
+        else:
+            k_lo = 0
+        k = np.arange(k_lo, k_hi + 1)[:, None]
+        c = np.concatenate([(2 * np.pi * k + phi) / w, (2 * np.pi * k - phi) / w]).ravel()
+        out.append(c[(c >= c_lo) & (c <= c_hi)])
+    if not out:
+        return np.empty(0)
+    return np.log(np.unique(np.concatenate(out)))
+
+
+def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
+    """sum_i min(min_j |fold(c omega_j h) - phi_i|, cap)^2 for every c = e^lnc."""
+    ang = _fold(np.exp(lnc)[:, None] * omega_h[None, :])  # (C, n)
+    d = np.abs(ang[:, None, :] - phi[None, :, None]).min(axis=2)  # (C, M)
+    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
+
+
+def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndarray, points: int = 2048,
+                   keep: int = 6, seed: int = 0) -> list[tuple[float, np.ndarray]]:
+    """Best (angle cost, theta) of the undamped frequency pattern against the measured poles."""
+    mv = np.flatnonzero(space.movable)
+    e = space.e[mv]
+    if mv.size == 0 or not np.any(e > 0):
+        return []
+    phi = _fold(np.angle(z[np.imag(z) >= 0]))
+    phi = phi[phi > 1e-6]
+    if phi.size == 0:
+        return []
+    emax = e.max()
+    stiff, soft = mv[e == emax], mv[e != emax]
+    llo, lhi = np.log(space.lo), np.log(space.hi)
+    base = np.log(np.clip(template, space.lo, space.hi))
+    base[soft] = llo[soft]  # the least damping: undamped frequencies
+    # shape: the stiffness ratios (log differences from the first stiffness parameter)
+    if stiff.size == 1:
+        ratios = np.zeros((1, 0))
+    elif stiff.size == 2:
+        ratios = np.linspace(-1.0, 1.0, points)[:, None]
+    else:
+        ratios = 2 * sobol(stiff.size - 1, points, seed) - 1
+    rel_lo = llo[stiff[1:]] - lhi[stiff[0]]
+    rel_hi = lhi[stiff[1:]] - llo[stiff[0]]
+    ratios = rel_lo + (ratios + 1) / 2 * (rel_hi - rel_lo)
+    h = problem.dt
+    found: list[tuple[float, np.ndarray]] = []
+    for r in ratios:
+        lt = base.copy()
+        lt[stiff[0]] = 0.5 * (llo[stiff[0]] + lhi[stiff[0]])
+        lt[stiff[1:]] = lt[stiff[0]] + r
+        # ln c range keeping every stiffness within the box (stiffness scales as c**emax)
+        lnc_lo = np.max((llo[stiff] - lt[stiff]) / emax)
+        lnc_hi = np.min((lhi[stiff] - lt[stiff]) / emax)
+        if lnc_hi < lnc_lo:
+            continue
+        s = _continuous_poles(problem.model, np.exp(lt[: problem.n_model]))
+        omega_h = np.abs(s.imag[s.imag > 0]) * h
+        if omega_h.size == 0:
+            continue
+        lnc = _scale_candidates(omega_h, phi, lnc_lo, lnc_hi)
+        if lnc.size == 0:
+            continue
+        cost = _angle_costs(omega_h, phi, lnc)
+        j = int(np.argmin(cost))
+        th = np.exp(lt)
+        th[stiff] *= np.exp(emax * lnc[j])
+        found.append((float(cost[j]), th))
+    found.sort(key=lambda x: x[0])
+    picked = distinct([Candidate(th, c, "poles") for c, th in found], rtol=0.02, limit=keep)
+    return [(c.cost, c.theta) for c in picked]
+
+
+def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200) -> Candidate:
+    """Least squares in ln theta (movable entries) on the capped distances of the measured
+    poles z to their nearest model poles."""
+    mv = np.flatnonzero(space.movable)
+    h, n_model = problem.dt, problem.n_model
+    theta = np.clip(np.asarray(theta, float), space.lo, space.hi)
+    zlo, zhi = np.log(space.lo[mv]), np.log(space.hi[mv])
+
+    def residual(x):
+        th = theta.copy()
+        th[mv] = np.exp(np.clip(x, zlo, zhi))
+        s = _continuous_poles(problem.model, th[:n_model])
+        if s.size == 0:
+            return np.full(z.size, POLE_CAP)
+        zm = np.exp(s * h)
+        d = np.abs(z[:, None] - zm[None, :]).min(axis=1)
+        return np.minimum(d, POLE_CAP)
+
+    # the pattern left every damping at its least value, where the pole radii barely move with
+    # it: start from the best common position of the damping-like parameters in their range
+    e = space.e[mv]
+    soft = e != e.max()
+    x0 = np.log(theta[mv])
+    if soft.any():
+        trials = []
+        for a in np.linspace(0.0, 1.0, 41):
+            x = x0.copy()
+            x[soft] = zlo[soft] + a * (zhi[soft] - zlo[soft])
+            trials.append((float(np.sum(residual(x) ** 2)), x))
+        x0 = min(trials, key=lambda t: t[0])[1]
+    res = least_squares(residual, x0, method="trf", diff_step=1e-7, max_nfev=max_nfev, x_scale=1.0)
+    th = theta.copy()
+    th[mv] = np.exp(np.clip(res.x, zlo, zhi))
+    return Candidate(th, float(2 * res.cost), "record poles")
+
+
+def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: int = 3,
+                    seed: int = 0) -> list[Candidate]:
+    """Starts whose pole pattern matches the record's poles, best first (empty when the
+    model's time scaling is not exact, a compensator filters the output, or no poles are
+    found)."""
+    if not space.scaled or problem.output_filter is not None or not space.movable.any():
+        return []
+    th0 = np.clip(np.asarray(template, float), space.lo, space.hi)
+    s = _continuous_poles(problem.model, th0[: problem.n_model])
+    if s.size == 0:
+        return []
+    try:
+        z = record_poles(problem.u, problem.y, int(s.size))
+    except (np.linalg.LinAlgError, ValueError, MemoryError):
+        return []
+    if z.size == 0:
+        return []
+    out = []
+    for _, th in pattern_search(problem, space, z, th0, seed=seed, keep=2 * limit):
+        try:
+            out.append(refine_on_poles(problem, space, z, th))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            continue
+    return distinct(out, rtol=0.01, limit=limit)
