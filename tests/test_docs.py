@@ -195,3 +195,12 @@ def test_mkdocs_builds_strictly(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     assert (tmp_path / "site" / "index.html").is_file()
     assert (tmp_path / "site" / "python-api" / "index.html").is_file()
+
+
+def test_every_strategy_option_is_documented():
+    """The scipy_lm table of docs/configuration.md names every field of StrategyOptions."""
+    from mbus_framework.estimation.strategy import StrategyOptions
+
+    text = (DOCS / "configuration.md").read_text(encoding="utf-8")
+    missing = [n for n in StrategyOptions.model_fields if f"`strategy.{n}`" not in text]
+    assert not missing, f"undocumented strategy options: {missing}"
