@@ -97,6 +97,11 @@ def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run, cl
     assert table["firmness"].tolist() == [1.5, 2.5, 3.5]
     assert (out / "group_summary.csv").exists() and sorted(p.name for p in (out / "plots").iterdir()) == sorted(
         f"{p}_by_group.png" for p in PROPS)
+    page = campaign_page(out)
+    assert len(page.all("img")) == len(PROPS)  # every property by group, embedded
+    assert "Group summary" in page.plain and "failed" in page.plain
+    links = sorted(a["href"] for a in page.all("a") if a["href"].endswith("report.html"))
+    assert links == [f"runs/{s}/report.html" for s in "abc"] and all((out / h).is_file() for h in links)
 
 
 def test_averaged_and_fitted_replicates(averaged_run, client):
@@ -150,6 +155,8 @@ def test_a_corrupt_file_fails_its_row_only_and_resume_follows_the_content(tmp_pa
     assert ok["sample_id"].tolist() == ["s0", "s1", "s3"]
     within(ok, truths)
     assert "1 failed" in _summary(first)
+    page = campaign_page(out)
+    assert "Failed rows" in page.plain and "s2.csv" in page.plain
 
     # A re-run with nothing changed fits nothing (no cluster is even started), exit status 1.
     assert main([str(path), "-o", str(out)]) == 1
@@ -166,6 +173,19 @@ def test_a_corrupt_file_fails_its_row_only_and_resume_follows_the_content(tmp_pa
     s0 = second.table.set_index("sample_id").loc["s0"]
     assert s0["sample_length"] == 0.0301
     within(second.table[second.table["sample_id"] != "s0"], truths)
+
+
+def campaign_page(out: Path):
+    """The campaign's report.html, parsed; self-contained (nothing fetched: no scripts, style
+    sheets or frames, every image a data URI; links only to sections and the runs' reports)."""
+    from test_report import Page
+
+    page = Page((out / "report.html").read_text(encoding="utf-8"))
+    assert not page.all("script") and not page.all("link") and not page.all("iframe")
+    assert all(img["src"].startswith("data:image/png;base64,") for img in page.all("img"))
+    assert all(a["href"].startswith("#") or a["href"].endswith("/report.html") for a in page.all("a"))
+    assert len(page.all("table")) >= 2  # counts and the group summary
+    return page
 
 
 def _summary(result) -> str:

@@ -8,6 +8,7 @@ Campaign folder (default ``<base output.directory>/<campaign name>``, so a re-ru
     samples.csv / .parquet         replicates: fit only: per-sample mean, SD and SE of the mean
     group_summary.csv / .txt       Tables 4.2/4.3 layout
     plots/<property>_by_group.png
+    report.html                    one self-contained page: counts, summary, failures, warnings, plots
     runs/<sample>[-r<k>]/          each fit's usual run folder (+ campaign_row.json when done)
 """
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any
 
 from mbus_framework import __version__
 from mbus_framework.campaigns.executor import dask_client, run_all
+from mbus_framework.campaigns.html_report import write_campaign_report
 from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
 from mbus_framework.campaigns.problems import Problems
 from mbus_framework.campaigns.progress import CampaignProgress
@@ -166,6 +168,7 @@ def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: fl
     result.files.update(result.report.files)
     result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
     result.wall_time_s = time.perf_counter() - t0
+    result.files["report_html"] = write_campaign_report(result)
     result.files["campaign_json"] = _write_meta(result, cluster, "interrupted" if result.interrupted else "finished", t0)
 
 
@@ -212,6 +215,6 @@ def summary_text(result: CampaignResult) -> str:
             lines.append(f"    ... and {len(failed) - 10} more (column 'error' of properties.csv)")
     if result.report is not None and len(result.table):
         lines += ["", result.report.text]
-    lines += ["", f"  written to {result.out_dir}/: properties.csv, properties.parquet, group_summary.csv, plots/, "
-                  f"runs/ ({result.wall_time_s:.1f} s)"]
+    lines += ["", f"  written to {result.out_dir}/: report.html, properties.csv, properties.parquet, group_summary.csv, "
+                  f"plots/, runs/ ({result.wall_time_s:.1f} s)"]
     return "\n".join(lines)

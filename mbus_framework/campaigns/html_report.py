@@ -1,0 +1,109 @@
+"""``report.html`` of a campaign folder: one self-contained page to open, mail or attach.
+
+What ran (fits, reused, failed, how replicates were treated), the group summary in the layout
+of Tables 4.2/4.3 (mean and SD as % of mean), the failed rows with their errors, the warnings
+the fits raised (each with how many rows raised it), every property by group as embedded
+figures, and links to each sample's own ``report.html``. Built from the same primitives as a
+run's report (:mod:`mbus_framework.pipeline.html`).
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from mbus_framework.pipeline import html
+from mbus_framework.pipeline.storage import atomic_write_text
+
+REPORT_HTML = "report.html"
+
+
+def _summary_rows(summary) -> tuple[list[str], list[list[Any]]]:
+    header = [str(c) for c in summary.columns]
+    rows = [[_cell(v) for v in row] for row in summary.itertuples(index=False, name=None)]
+    return header, rows
+
+
+def _cell(value: Any) -> Any:
+    """Numbers stay numbers (right-aligned, 5 significant digits); missing values are blank."""
+    if hasattr(value, "item"):  # numpy scalars
+        value = value.item()
+    if isinstance(value, float) and math.isnan(value):
+        return ""
+    return value
+
+
+def _warning_counts(table) -> list[list[Any]]:
+    counts: Counter[str] = Counter()
+    if "warnings" not in table.columns:
+        return []
+    for cell in table["warnings"].dropna():  # a row's warnings, as one cell
+        if str(cell).strip():
+            counts[str(cell).strip()[:600]] += 1
+    return [[n, w] for w, n in counts.most_common(20)]
+
+
+def _sample_links(result) -> html.Html:
+    out = result.out_dir
+    items = []
+    for run_dir in result.table.get("run_dir", []):
+        report = out / str(run_dir) / REPORT_HTML
+        if report.is_file():
+            rel = Path(str(run_dir)) / REPORT_HTML
+            items.append(f'<li><a href="{html.escape(rel.as_posix())}">{html.escape(Path(str(run_dir)).name)}</a></li>')
+    if not items:
+        return html.paragraph("No per-sample reports (the fits ran with plots and reports off, or none finished).")
+    return html.Html("<ul>" + "".join(items) + "</ul>")
+
+
+def campaign_report_html(result) -> str:
+    """The page for ``result``, a :class:`~mbus_framework.campaigns.runner.CampaignResult`
+    (its table, group report and counts)."""
+    c = result.campaign
+    table = result.table
+    how = ("replicates averaged before fitting" if c.spec.replicates == "average"
+           else "each replicate fitted, then aggregated per sample")
+    counts = {
+        "fits": len(result.tasks),
+        "run now": len(result.fitted),
+        "reused from an earlier run": len(result.reused),
+        "failed": len(result.failed),
+        "replicates": how,
+        "groups": ", ".join(c.spec.groups) or "(none)",
+        "status": "interrupted: run again to continue" if result.interrupted else "finished",
+        "wall time [s]": round(result.wall_time_s, 1),
+    }
+    parts = [html.section("Campaign", html.key_values(counts), anchor="campaign")]
+    if result.report is not None and len(table):
+        header, rows = _summary_rows(result.report.summary)
+        parts.append(html.section(
+            "Group summary", html.paragraph("Mean and standard deviation as % of the mean of each group's fitted "
+                                            "rows (the layout of Tables 4.2/4.3)."),
+            html.table(rows, header=header), anchor="summary"))
+    if result.failed:
+        errors = dict(zip(table["run_dir"], table["error"]))
+        parts.append(html.section("Failed rows", html.table([[Path(r).name, errors.get(r, "")] for r in result.failed],
+                                                             header=["run", "error"]), anchor="failed"))
+    warned = _warning_counts(table) if table is not None else []
+    parts.append(html.section(
+        "Warnings", html.warnings([f"{n} row(s): {w}" for n, w in warned],
+                                  none="No fit raised a warning."), anchor="warnings"))
+    figures = []
+    if result.report is not None:
+        for prop, path in result.report.plots.items():
+            p = Path(path)
+            if p.is_file():
+                figures.append(html.image(p.read_bytes(), f"{prop} by group",
+                                          f"{prop} of every row with its 95 % interval, group mean +- SD"))
+    if figures:
+        parts.append(html.section("Properties by group", *figures, anchor="plots"))
+    parts.append(html.section("Samples", _sample_links(result), anchor="samples"))
+    nav = [("campaign", "Campaign"), ("summary", "Summary"), ("warnings", "Warnings"), ("plots", "Plots"),
+           ("samples", "Samples")]
+    return html.page(c.title or "mbus campaign", parts, subtitle=str(c.path), nav=nav)
+
+
+def write_campaign_report(result) -> Path:
+    """Write ``report.html`` into the campaign folder; returns its path."""
+    return atomic_write_text(result.out_dir / REPORT_HTML, campaign_report_html(result))
