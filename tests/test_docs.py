@@ -204,3 +204,42 @@ def test_every_strategy_option_is_documented():
     text = (DOCS / "configuration.md").read_text(encoding="utf-8")
     missing = [n for n in StrategyOptions.model_fields if f"`strategy.{n}`" not in text]
     assert not missing, f"undocumented strategy options: {missing}"
+
+
+def documented_commands() -> list[tuple[str, str]]:
+    """(page, command) for every mbus-run, mbus-analyze and `python benchmarks/...` line of
+    every bash block (marked runnable or not); backslash continuations joined."""
+    out: list[tuple[str, str]] = []
+    for path in MARKDOWN:
+        for lang, body, _ in blocks(path):
+            if lang != "bash":
+                continue
+            for line in body.replace("\\\n", " ").splitlines():
+                command = line.split("  #")[0].split(" # ")[0].strip()
+                if command.startswith(("mbus-run", "mbus-analyze", "python benchmarks/")):
+                    out.append((path.name, command))
+    return out
+
+
+SHIPPED = ("configs/", "examples/", "benchmarks/", "tests/")
+
+
+@pytest.mark.parametrize("page,command", documented_commands())
+def test_documented_commands_parse_and_name_shipped_files(page, command):
+    """Each documented command is accepted by its command-line parser (not run), and every
+    file of the repository it names exists."""
+    from mbus_framework.analysis import cli as analyze_cli
+    from mbus_framework import cli as run_cli
+
+    argv = shlex.split(command)
+    for arg in argv[1:]:
+        value = arg.split("=", 1)[-1]
+        if value.startswith(SHIPPED) and not any(ch in value for ch in "<>*"):
+            assert (REPO / value).exists(), f"{page}: {command}: {value} does not exist"
+    if argv[0] == "python":
+        return
+    parser = run_cli._parser() if argv[0] == "mbus-run" else analyze_cli._parser()
+    try:
+        parser.parse_args(argv[1:])
+    except SystemExit as exc:
+        assert exc.code == 0, f"{page}: {command}: rejected by {argv[0]}'s parser"

@@ -177,11 +177,14 @@ def test_layers_only_import_upstream():
     assert not wrong, "imports against the data flow: " + ", ".join(sorted(wrong))
 
 
-@pytest.mark.parametrize("package", LAYERS)
-def test_no_core_module_outside_the_engine_is_over_500_lines(package):
-    folder = ROOT / package
-    if package == "engine" or not folder.exists():
-        pytest.skip("the engine (simulation, chain) is exempt" if package == "engine" else "not present")
-    long = [f"{p.relative_to(ROOT)}: {n}" for p in folder.rglob("*.py")
-            if (n := len(p.read_text().splitlines())) > 500]
+#: The engine's two large modules, exempt from the 500-line rule (issue 17).
+ENGINE_EXEMPT = {"engine/simulation.py", "engine/chain.py"}
+
+
+def test_no_core_module_outside_the_engine_is_over_500_lines():
+    """Every module of mbus_framework (every subpackage and the top level) but the engine's
+    simulation and chain."""
+    long = [f"{rel}: {n}" for p in sorted(ROOT.rglob("*.py"))
+            if (rel := p.relative_to(ROOT).as_posix()) not in ENGINE_EXEMPT
+            and (n := len(p.read_text(encoding="utf-8").splitlines())) > 500]
     assert not long, long
