@@ -28,6 +28,7 @@ from mbus_framework.pipeline.config import validate_options
 from mbus_framework.studies.transducer_calibration import run_calibration
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
+from test_report import assert_folder_report
 
 LENGTHS = [0.0, 0.005, 0.010, 0.015, 0.020, 0.025]
 FS = 25e6
@@ -171,6 +172,7 @@ def test_calibration_run_saves_records_file_and_figures(tmp_path):
         f"length_{x:06.3f}mm.csv" for x in (0, 5, 10, 15, 20, 25)
     ]
     assert (out / "fig5_3_gtot.png").stat().st_size > 10_000 and (out / "fig5_4_gtr.png").stat().st_size > 10_000
+    assert_folder_report(out, len(list(out.glob("*.png"))), "transducer calibration: virtual A301S pair")
     meta = json.loads((tmp_path / "cals" / "pair.json").read_text())
     assert meta["pair"] == "virtual A301S pair (0.5 MHz, 25.4 mm)" and meta["reference"] == "water"
     assert meta["analysis"] == "periodic" and meta["lengths_m"] == LENGTHS and meta["date"]

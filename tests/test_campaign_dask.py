@@ -296,3 +296,7 @@ def test_a_study_on_dask_gives_the_in_process_numbers(tmp_path, client):
     assert [{k: v for k, v in r.items() if k not in drop} for r in there.runs] == [
         {k: v for k, v in r.items() if k not in drop} for r in here.runs]
     assert sorted(p.name for p in (tmp_path / "there" / "runs").iterdir()) == ["seed-00005", "seed-00006"]
+    from test_report import assert_folder_report
+
+    assert_folder_report(tmp_path / "there", len(list((tmp_path / "there").glob("*.png"))),
+                         there.text.strip().splitlines()[0].strip())

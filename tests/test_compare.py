@@ -24,6 +24,7 @@ from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from plugins.models.maxwell import MaxwellChain, MaxwellOptions
 from plugins.models.sls import SlsChain, SlsOptions
 from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from test_report import assert_folder_report
 
 SAMPLE = Sample(length=0.05, diameter=0.0254, density=1000.0)
 N_EL = 6
@@ -133,6 +134,7 @@ def test_run_comparison_from_a_config(tmp_path):
     doc = json.loads((out / "comparison.json").read_text())
     assert doc["best"] == "sls" and [m["name"] for m in doc["models"]] == ["kelvin_voigt", "sls", "maxwell"]
     assert (out / "comparison_bode.png").read_bytes()[:4] == b"\x89PNG"
+    assert_folder_report(out, 1, text.strip().splitlines()[0].strip())
     # options of the configured model carry over (n_elements) to the others
     assert table.row("kelvin_voigt").model.n == N_EL
 

@@ -23,6 +23,7 @@ from mbus_framework.studies.design import (
 from plugins.backends.transducers import TransducerPair, TransducerPairOptions
 from plugins.excitations.prbs import Prbs, PrbsOptions
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from test_report import assert_folder_report
 
 FS, N = 25e6, 5000
 POTATO = {"E_sigma": 2.42e10, "eta_sigma": 7.18e3, "E_tau": 6.56e9, "eta_tau": 5.14e3}
@@ -110,6 +111,7 @@ def test_design_run_prints_the_ranking_and_plots_the_spectra(tmp_path):
     assert rank["prbs proposed"] < rank["prbs x8 bit width"]
     assert rank["prbs proposed"] < rank["prbs x0.5 bit width"]
     assert (out / "design_spectra.png").stat().st_size > 20_000
+    assert_folder_report(out, 1, "proposed PRBS: bit width 0.52 us (13 samples), order 9")
     assert result["nominal_source"] == "backend truth"
 
 

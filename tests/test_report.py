@@ -205,3 +205,31 @@ def test_report_opens_in_headless_chromium(plotted_run, tmp_path):
     pixels = imread(shot)[..., :3]
     red = (pixels[..., 0] > 0.7) & (pixels[..., 1] < 0.35) & (pixels[..., 2] < 0.35)  # matplotlib C3
     assert red.sum() > 500, red.sum()
+
+
+def assert_folder_report(folder: Path, figures: int, *texts: str) -> Page:
+    """``folder/report.html`` of a study, comparison, design or calibration: self-contained,
+    the printed summary, ``figures`` embedded PNGs (every PNG of the folder), the config."""
+    page = Page((folder / "report.html").read_text(encoding="utf-8"))
+    assert_self_contained(page)
+    imgs = page.all("img")
+    assert len(imgs) == figures == len(list(folder.glob("*.png")))
+    for img in imgs:
+        assert png_size(base64.b64decode(img["src"].split(",", 1)[1]))[0] > 100
+    for text in texts:
+        assert text in page.plain, text
+    return page
+
+
+def test_folder_report_embeds_the_summary_figures_and_config(tmp_path):
+    from mbus_framework.pipeline.folder_report import write_folder_report
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3, 2))
+    fig.add_subplot().plot([0, 1], [1, 0])
+    (tmp_path / "b_plot.png").write_bytes(html.png_bytes(fig))
+    (tmp_path / "a_plot.png").write_bytes(html.png_bytes(fig))
+    (tmp_path / "config.yaml").write_text("sample: {length: 0.03}\n")
+    write_folder_report(tmp_path, "mbus study: monte carlo", "  k_sigma <1 % & ok\n")
+    page = assert_folder_report(tmp_path, 2, "k_sigma <1 % & ok", "length: 0.03", "mbus study: monte carlo")
+    assert [i["alt"] for i in page.all("img")] == ["a plot", "b plot"]

@@ -325,6 +325,7 @@ def run_comparison(
     from mbus_framework.interfaces.registry import default_registry
     from mbus_framework.pipeline.config import load_config
     from mbus_framework.pipeline.run import acquire, build_components, designed_waveform, new_run_dir
+    from mbus_framework.pipeline.folder_report import write_folder_report
     from mbus_framework.pipeline.storage import atomic_write_json, atomic_write_text
 
     source = str(config_path)
@@ -361,4 +362,5 @@ def run_comparison(
         others = [(r.name, r.model, r.fit.theta) for r in table.rows if r is not best and r.fit is not None]
         write_bode_plot(run_dir / "comparison_bode.png", best.model, best.fit.theta, data.u, data.y, data.dt,
                         label=f"{best.name} (best)", extra_models=others, title="model comparison")
+    write_folder_report(run_dir, "mbus model comparison", text, source)
     return table, text

@@ -221,6 +221,7 @@ def run_design(config_path, overrides=None, out_dir=None) -> str:
     from mbus_framework.pipeline.config import validate_options, validate_structure
     from mbus_framework.pipeline.components import require_excitation
     from mbus_framework.pipeline.run import build_components, new_run_dir
+    from mbus_framework.pipeline.folder_report import write_folder_report
     from mbus_framework.pipeline.storage import atomic_write_json
 
     source = str(config_path)
@@ -285,7 +286,9 @@ def run_design(config_path, overrides=None, out_dir=None) -> str:
         "files": files,
     }
     atomic_write_json(out / "design.json", result)
-    return design_text(result, ranked, c.model.parameter_names, out, files)
+    text = design_text(result, ranked, c.model.parameter_names, out, files)
+    write_folder_report(out, "mbus excitation design", text, source)
+    return text
 
 
 def _nominal(c, d: DesignOptions, source: str) -> tuple[np.ndarray, str]:

@@ -44,6 +44,7 @@ from typing import Any
 from mbus_framework import __version__
 from mbus_framework.estimation.problem import Progress
 from mbus_framework.pipeline.config import load_config
+from mbus_framework.pipeline.folder_report import write_folder_report
 from mbus_framework.pipeline.storage import (
     atomic_write_json,
     atomic_write_text,
@@ -126,6 +127,7 @@ def run_study(
     }
     if fig is not None:
         files["png"] = _save_figure(fig, out / f"{kind}.png")
+    files["report"] = write_folder_report(out, f"mbus study: {kind.replace('_', ' ')}", text, str(config_path))
     return StudyResult(kind, out, rows, summary, runs, text, files)
 
 

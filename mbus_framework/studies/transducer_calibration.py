@@ -131,6 +131,7 @@ def _calibrate(config, opts, c, waveform, period, run_dir: Path, source: str, pr
 
     from mbus_framework.interfaces.backend import AcquisitionContext
     from mbus_framework.interfaces.sample import Sample
+    from mbus_framework.pipeline.folder_report import write_folder_report
     from mbus_framework.pipeline.storage import (
         atomic_write_json,
         atomic_write_text,
@@ -200,7 +201,9 @@ def _calibrate(config, opts, c, waveform, period, run_dir: Path, source: str, pr
     if config.output.plots:
         plots = write_calibration_plots(run_dir, est, band, truth, pair_name)
     atomic_write_json(run_dir / "calibration_summary.json", {**meta, "files": [str(p) for o in outputs for p in o] + plots})
-    return summary_text(meta, est, outputs, plots)
+    text = summary_text(meta, est, outputs, plots)
+    write_folder_report(run_dir, "mbus transducer calibration", text, source)
+    return text
 
 
 def _backend_for_record(backend, j: int):
