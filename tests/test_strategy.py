@@ -238,11 +238,13 @@ def test_unaccepted_search_says_so():
     problem, truth = make_problem(CASES["thin-stiff"])
     wrong = truth * np.array([1.0, 2.0, 1.0, 0.5])
     local = ScriptedLocalFit(wrong, ends=[wrong] * 50)
-    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], n_starts=2, fallback_starts=2,
-                                                                 time_scale=False, coordinate_scan=0))
+    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], n_starts=2, pole_starts=1,
+                                                                 fallback_starts=2, time_scale=False,
+                                                                 coordinate_scan=0))
     assert not report.accepted
     assert report.accepted_because.startswith("not confirmed")
-    assert len(report.starts) <= 4  # the start budget and the fallback, no more
+    assert len(report.starts) <= 5  # the start budget, the pole start and the fallback, no more
+    assert sum(s["origin"] == "record poles" for s in report.starts) <= 1
 
 
 def test_refinement_never_makes_the_result_worse():

@@ -71,6 +71,12 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
 
     # -- fitting -----------------------------------------------------------------------------
     def fit(self, X, y):
+        """Train the members on (X, y); one BLAS thread, so a seed gives the same weights to the
+        last bit whatever else the process runs (a multi-threaded reduction may not)."""
+        with _one_blas_thread():
+            return self._fit(X, y)
+
+    def _fit(self, X, y):
         X, y = self._check_xy(X, y)
         self._check_params(len(y))
         rng = np.random.default_rng(self.random_state)
@@ -102,7 +108,8 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         self._check_fitted()
         X = self._check_x(X)
         Z = self.x_scaling_.transform(X)
-        out = np.array([self.net_.predict(w, Z) for w in self.members_])
+        with _one_blas_thread():
+            out = np.array([self.net_.predict(w, Z) for w in self.members_])
         return self.y_scaling_.inverse(out[..., None])[..., 0]
 
     def predict(self, X) -> np.ndarray:
@@ -160,3 +167,11 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         est.members_ = [np.asarray(w, dtype=float) for w in members]
         est.trainings_ = []
         return est
+
+
+def _one_blas_thread():
+    """A context with BLAS/OpenMP limited to one thread (threadpoolctl, a scikit-learn
+    dependency): these networks are tiny, and one thread makes every result reproducible."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1)
