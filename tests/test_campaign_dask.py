@@ -194,7 +194,9 @@ def _summary(result) -> str:
     return summary_text(result)
 
 
-def test_ctrl_c_half_way_then_a_rerun_fits_only_the_missing_samples(tmp_path, client):
+def start_half_way(tmp_path):
+    """(campaign path, out folder, mbus-run process) of a 10-sample campaign on its own
+    1-worker LocalCluster, returned once at least 2 samples are fitted."""
     base = json.loads(json.dumps(BASE))
     base["excitation"]["options"]["n_samples"] = 2000  # ~1 s per fit, so there is a half-way
     rows = [{"sample_id": f"s{i:02d}", "cultivar": "x", "backend.options.seed": i} for i in range(10)]
@@ -207,6 +209,27 @@ def test_ctrl_c_half_way_then_a_rerun_fits_only_the_missing_samples(tmp_path, cl
     while len(list(out.glob(f"runs/*/{MARKER}"))) < 2:
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.05)
+    return path, out, proc
+
+
+def test_sigterm_stops_a_campaign_like_ctrl_c(tmp_path):
+    """A batch scheduler's SIGTERM to mbus-run alone: the campaign stops cleanly, marks itself
+    interrupted, closes its cluster and keeps what finished."""
+    _, out, proc = start_half_way(tmp_path)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].endswith("(SIGTERM)")
+    assert "run again to continue" in err and "Traceback" not in err
+    assert json.loads((out / "campaign.json").read_text())["status"] == "interrupted"
+    done = list(out.glob(f"runs/*/{MARKER}"))
+    pids = {json.loads(m.read_text())["worker"]["pid"] for m in done}
+    assert not any(psutil.pid_exists(p) and "python" in psutil.Process(p).name() for p in pids)
+    assert len(pd.read_csv(out / "properties.csv")) >= 2
+
+
+def test_ctrl_c_half_way_then_a_rerun_fits_only_the_missing_samples(tmp_path, client):
+    path, out, proc = start_half_way(tmp_path)
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C at a terminal: the whole process group
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err

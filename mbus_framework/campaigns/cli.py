@@ -2,7 +2,7 @@
 
 Exit status: 0 when every sample was fitted, 1 when some failed (the summary and the table's
 ``error`` column say which), 2 for an invalid campaign (every problem printed, one per line),
-130 after Ctrl-C (a re-run continues where this one stopped).
+130 after Ctrl-C and 143 after SIGTERM (a re-run continues where this one stopped).
 """
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ def run_from_cli(args) -> int:
     if other:
         print(f"mbus-run: error: {args.config}: {other[0]} runs on a run config, not on a campaign file", file=sys.stderr)
         return 2
-    previous = _terminate_as_interrupt()
+    terminated: list[int] = []
+    previous = _terminate_as_interrupt(terminated)
     try:
         result = run_campaign(
             args.config,
@@ -38,8 +39,8 @@ def run_from_cli(args) -> int:
         return exc.exit_code
     except CampaignInterrupted as exc:
         print(summary_text(exc.result) if not args.quiet else exc.result.out_dir, file=sys.stderr)
-        print(f"mbus-run: {exc}", file=sys.stderr)
-        return 130
+        print(f"mbus-run: {exc}" + (" (SIGTERM)" if terminated else ""), file=sys.stderr)
+        return 143 if terminated else 130
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -47,10 +48,12 @@ def run_from_cli(args) -> int:
     return 1 if result.failed else 0
 
 
-def _terminate_as_interrupt():
-    """SIGTERM stops a campaign as Ctrl-C does (cancel, close the cluster, keep what finished)."""
+def _terminate_as_interrupt(terminated: list[int]):
+    """SIGTERM stops a campaign as Ctrl-C does (cancel, close the cluster, keep what finished);
+    ``terminated`` records that it came."""
 
     def handler(signum, frame):
+        terminated.append(signum)
         raise KeyboardInterrupt
 
     if threading.current_thread() is not threading.main_thread():
