@@ -20,6 +20,7 @@ from mbus_framework.pipeline import interrupts
 from mbus_framework.pipeline.run_folder import RunFolder, recover
 from reliability_support import (
     MBUS_RUN,
+    REPO,
     assert_clean_outcome,
     config,
     file_backend,
@@ -219,6 +220,27 @@ def test_ctrl_c_at_any_moment_exits_130_and_marks_the_run(tmp_path, moment, afte
     assert status["status"] == "interrupted" and status["error"] == "interrupted (Ctrl-C)"
     assert tmp_files(tmp_path) == []
     assert not (out / "result.json").exists()
+
+
+@POSIX
+def test_ctrl_c_while_the_figures_are_written_keeps_the_result(tmp_path):
+    """After the fit: result.json stays (what was estimated is not lost), the run is marked
+    interrupted, no half-written figure or report is left."""
+    out = tmp_path / "out"
+    proc = spawn([REPO / "configs" / "potato.yaml", "-o", out])
+    if not wait_for(out / "result.json", proc):
+        proc.kill()
+        pytest.fail(f"result.json never appeared: {proc.communicate()}")
+    time.sleep(0.05)  # drawing the figures takes about a second
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    if proc.returncode == 0:
+        pytest.skip("the figures were written before the signal arrived")
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "mbus-run: interrupted" and "Traceback" not in err
+    assert strict_json(out / "status.json")["status"] == "interrupted"
+    assert strict_json(out / "result.json")["properties"]["E_sigma"] > 0
+    assert tmp_files(tmp_path) == []
 
 
 @POSIX
