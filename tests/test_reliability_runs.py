@@ -213,6 +213,8 @@ def test_ctrl_c_at_any_moment_exits_130_and_marks_the_run(tmp_path, moment, afte
     time.sleep(after)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
+    if proc.returncode == 0 and (out / "result.json").exists():
+        pytest.skip(f"the run finished within {after} s of the {moment.split()[0]}, before the signal")
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "mbus-run: interrupted"
     assert "Traceback" not in err
