@@ -100,6 +100,7 @@ def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run, cl
     page = campaign_page(out)
     assert len(page.all("img")) == len(PROPS)  # every property by group, embedded
     assert "Group summary" in page.plain and "failed" in page.plain
+    assert "E_sigma mean (SD %)" in page.plain and "error of each group mean against the mean truth" in page.plain
     links = sorted(a["href"] for a in page.all("a") if a["href"].endswith("report.html"))
     assert links == [f"runs/{s}/report.html" for s in "abc"] and all((out / h).is_file() for h in links)
 

@@ -19,10 +19,36 @@ from mbus_framework.pipeline.storage import atomic_write_text
 REPORT_HTML = "report.html"
 
 
-def _summary_rows(summary) -> tuple[list[str], list[list[Any]]]:
-    header = [str(c) for c in summary.columns]
-    rows = [[_cell(v) for v in row] for row in summary.itertuples(index=False, name=None)]
-    return header, rows
+def _summary_tables(summary, groups: list[str]) -> list[html.Html]:
+    """Tables 4.2/4.3 layout: per group n, density and each quantity as "mean (SD %)"; then,
+    when the truth is known (simulated samples), the error of each group mean."""
+    quantities = [c[: -len("_mean")] for c in summary.columns if c.endswith("_mean") and not c.endswith("_true_mean")]
+    keys = groups or ["group"]
+    has_density = "density" in summary.columns
+    header = [*keys, "n", *(["density"] if has_density else []), *(f"{q} mean (SD %)" for q in quantities)]
+    rows, errors = [], []
+    for _, r in summary.iterrows():
+        label = [_cell(r[k]) for k in keys]
+        cells = [f"{_number(r[f'{q}_mean'])} ({_number(r[f'{q}_sd_percent'], 3)} %)" for q in quantities]
+        rows.append([*label, int(r["n"]), *([_cell(r["density"])] if has_density else []), *cells])
+        if any(f"{q}_error_percent" in summary.columns for q in quantities):
+            errors.append([*label, *(_signed_percent(r.get(f"{q}_error_percent")) for q in quantities)])
+    out = [html.table(rows, header=header, caption="mean (standard deviation as % of the mean) of each "
+                                                   "group's fitted rows")]
+    if errors:
+        out.append(html.table(errors, header=[*keys, *quantities],
+                              caption="error of each group mean against the mean truth (simulated samples)"))
+    return out
+
+
+def _number(value: Any, digits: int = 4) -> str:
+    value = _cell(value)
+    return "" if value == "" else html.number(float(value), digits)
+
+
+def _signed_percent(value: Any) -> str:
+    value = _cell(value)
+    return "" if value in ("", None) else f"{float(value):+.2f} %"
 
 
 def _cell(value: Any) -> Any:
@@ -76,11 +102,10 @@ def campaign_report_html(result) -> str:
     }
     parts = [html.section("Campaign", html.key_values(counts), anchor="campaign")]
     if result.report is not None and len(table):
-        header, rows = _summary_rows(result.report.summary)
         parts.append(html.section(
-            "Group summary", html.paragraph("Mean and standard deviation as % of the mean of each group's fitted "
-                                            "rows (the layout of Tables 4.2/4.3)."),
-            html.table(rows, header=header), anchor="summary"))
+            "Group summary", *_summary_tables(result.report.summary, list(c.spec.groups)),
+            html.paragraph("Every column, with the standard deviations and truths: group_summary.csv."),
+            anchor="summary"))
     if result.failed:
         errors = dict(zip(table["run_dir"], table["error"]))
         parts.append(html.section("Failed rows", html.table([[Path(r).name, errors.get(r, "")] for r in result.failed],
