@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from mbus_framework.pipeline import html
+from mbus_framework.pipeline.run_report import REPORT_FILE
 from mbus_framework.pipeline.storage import atomic_write_text
 
-REPORT_HTML = "report.html"
 
 
 def _summary_tables(summary, groups: list[str]) -> list[html.Html]:
@@ -74,9 +74,9 @@ def _sample_links(result) -> html.Html:
     out = result.out_dir
     items = []
     for run_dir in result.table.get("run_dir", []):
-        report = out / str(run_dir) / REPORT_HTML
+        report = out / str(run_dir) / REPORT_FILE
         if report.is_file():
-            rel = Path(str(run_dir)) / REPORT_HTML
+            rel = Path(str(run_dir)) / REPORT_FILE
             items.append(f'<li><a href="{html.escape(rel.as_posix())}">{html.escape(Path(str(run_dir)).name)}</a></li>')
     if not items:
         return html.paragraph("No per-sample reports (the fits ran with plots and reports off, or none finished).")
@@ -131,4 +131,4 @@ def campaign_report_html(result) -> str:
 
 def write_campaign_report(result) -> Path:
     """Write ``report.html`` into the campaign folder; returns its path."""
-    return atomic_write_text(result.out_dir / REPORT_HTML, campaign_report_html(result))
+    return atomic_write_text(result.out_dir / REPORT_FILE, campaign_report_html(result))

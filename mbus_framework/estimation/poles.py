@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
+from mbus_framework.engine.simulation import as_float_ss
 from mbus_framework.estimation.global_search import Candidate, SearchSpace, distinct, sobol
 
 #: Largest angle distance [rad] a measured pole contributes (a pole the model cannot explain).
@@ -71,7 +72,7 @@ def record_poles(u: np.ndarray, y: np.ndarray, order: int, horizon: int | None =
 
 def _continuous_poles(model, theta: np.ndarray) -> np.ndarray:
     with np.errstate(all="ignore"):
-        A = np.asarray(model.state_space(theta)[0], float)
+        A = as_float_ss(model.state_space(theta)).A
         if not np.all(np.isfinite(A)):
             return np.empty(0, complex)
         return np.linalg.eigvals(A)
@@ -87,13 +88,9 @@ def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_h
     out = []
     c_lo, c_hi = np.exp(lnc_lo), np.exp(lnc_hi)
     for w in omega_h[omega_h > 0]:
-        k_hi = int(np.floor(c_hi * w / (2 * np.pi))) + 1
-        if k_hi > 64:  # more aliases than a record can tell apart
-            k_lo = int(np.floor(c_lo * w / (2 * np.pi)))
-            if k_hi - k_lo > 64:
-                continue
-        else:
-            k_lo = 0
+        k_lo, k_hi = int(np.floor(c_lo * w / (2 * np.pi))), int(np.floor(c_hi * w / (2 * np.pi))) + 1
+        if k_hi - k_lo > 64:  # more aliases than a record can tell apart
+            continue
         k = np.arange(k_lo, k_hi + 1)[:, None]
         c = np.concatenate([(2 * np.pi * k + phi) / w, (2 * np.pi * k - phi) / w]).ravel()
         out.append(c[(c >= c_lo) & (c <= c_hi)])
@@ -110,8 +107,9 @@ def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.nd
 
 
 def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndarray, points: int = 2048,
-                   keep: int = 6, seed: int = 0) -> list[tuple[float, np.ndarray]]:
-    """Best (angle cost, theta) of the undamped frequency pattern against the measured poles."""
+                   keep: int = 6, seed: int = 0) -> list[Candidate]:
+    """The best distinct undamped frequency patterns against the measured poles (cost: the
+    capped angle distances)."""
     mv = np.flatnonzero(space.movable)
     e = space.e[mv]
     if mv.size == 0 or not np.any(e > 0):
@@ -136,7 +134,7 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
     rel_hi = lhi[stiff[1:]] - llo[stiff[0]]
     ratios = rel_lo + (ratios + 1) / 2 * (rel_hi - rel_lo)
     h = problem.dt
-    found: list[tuple[float, np.ndarray]] = []
+    found: list[Candidate] = []
     for r in ratios:
         lt = base.copy()
         lt[stiff[0]] = 0.5 * (llo[stiff[0]] + lhi[stiff[0]])
@@ -157,10 +155,8 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
         j = int(np.argmin(cost))
         th = np.exp(lt)
         th[stiff] *= np.exp(emax * lnc[j])
-        found.append((float(cost[j]), th))
-    found.sort(key=lambda x: x[0])
-    picked = distinct([Candidate(th, c, "poles") for c, th in found], rtol=0.02, limit=keep)
-    return [(c.cost, c.theta) for c in picked]
+        found.append(Candidate(th, float(cost[j]), "poles"))
+    return distinct(found, rtol=0.02, limit=keep)
 
 
 def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200) -> Candidate:
@@ -206,20 +202,16 @@ def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: in
     found)."""
     if not space.scaled or problem.output_filter is not None or not space.movable.any():
         return []
-    th0 = np.clip(np.asarray(template, float), space.lo, space.hi)
-    s = _continuous_poles(problem.model, th0[: problem.n_model])
-    if s.size == 0:
-        return []
     try:
-        z = record_poles(problem.u, problem.y, int(s.size))
+        z = record_poles(problem.u, problem.y, problem.model.n_states)
     except (np.linalg.LinAlgError, ValueError, MemoryError):
         return []
     if z.size == 0:
         return []
     out = []
-    for _, th in pattern_search(problem, space, z, th0, seed=seed, keep=2 * limit):
+    for pattern in pattern_search(problem, space, z, template, seed=seed, keep=2 * limit):
         try:
-            out.append(refine_on_poles(problem, space, z, th))
+            out.append(refine_on_poles(problem, space, z, pattern.theta))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     return distinct(out, rtol=0.01, limit=limit)

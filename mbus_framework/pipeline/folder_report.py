@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from mbus_framework.pipeline import html
+from mbus_framework.pipeline.run_report import REPORT_FILE
 from mbus_framework.pipeline.storage import atomic_write_text
 
-REPORT_HTML = "report.html"
 
 
 def folder_report_html(folder: Path, title: str, summary_text: str, subtitle: str | None = None) -> str:
@@ -35,4 +35,4 @@ def folder_report_html(folder: Path, title: str, summary_text: str, subtitle: st
 
 def write_folder_report(folder: Path, title: str, summary_text: str, subtitle: str | None = None) -> Path:
     """Write ``report.html`` into ``folder`` (see :func:`folder_report_html`); returns its path."""
-    return atomic_write_text(Path(folder) / REPORT_HTML, folder_report_html(folder, title, summary_text, subtitle))
+    return atomic_write_text(Path(folder) / REPORT_FILE, folder_report_html(folder, title, summary_text, subtitle))
