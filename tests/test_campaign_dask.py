@@ -324,3 +324,41 @@ def test_a_study_on_dask_gives_the_in_process_numbers(tmp_path, client):
 
     assert_folder_report(tmp_path / "there", len(list((tmp_path / "there").glob("*.png"))),
                          there.text.strip().splitlines()[0].strip())
+
+
+def test_a_terminal_shows_done_failed_remaining_and_eta(tmp_path):
+    """mbus-run on a terminal (a pseudo-terminal here, CI unset): the campaign's bar counts
+    done, failed and remaining and shows an ETA; the same run in a log prints no bar."""
+    import pty
+    import re
+
+    truths = draw_truths(2, seed=5)
+    for i, truth in enumerate(truths):
+        simulate_record(tmp_path / "rec" / f"s{i}.csv", truth, seed=i)
+    (tmp_path / "rec" / "bad.csv").write_text("t,u,y\n0,0,0\n1e-7,1,oops\n")
+    rows = [{"sample_id": f"s{i}", "cultivar": "x", "data": f"rec/s{i}.csv"} for i in range(2)]
+    rows.append({"sample_id": "bad", "cultivar": "x", "data": "rec/bad.csv"})
+    path = write_campaign(tmp_path, rows)
+    env = {k: v for k, v in os.environ.items() if k != "CI"} | {"MPLBACKEND": "Agg", "COLUMNS": "160"}
+    main_fd, child_fd = pty.openpty()
+    cmd = [sys.executable, "-m", "mbus_framework.cli", str(path), "-o", str(tmp_path / "tty"), "--workers", "1"]
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=child_fd, stderr=child_fd, env=env)
+    os.close(child_fd)
+    chunks = []
+    while True:
+        try:
+            data = os.read(main_fd, 65536)
+        except OSError:  # the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(main_fd)
+    assert proc.wait(timeout=240) == 1  # one row failed
+    screen = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", b"".join(chunks).decode("utf-8", "replace"))
+    assert re.search(r"3/3 done\s+1 failed\s+0 remaining\s+ETA", screen), screen[-2000:]
+    assert "Traceback" not in screen
+
+    logged = subprocess.run(cmd[:4] + ["-o", str(tmp_path / "log"), "--workers", "1"],
+                            capture_output=True, text=True, env=env, timeout=240)
+    assert logged.returncode == 1 and "remaining" not in logged.stderr + logged.stdout
