@@ -76,6 +76,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def list_plugins() -> str:
+    """One line per plugin (third-party summaries and sources folded and cut to fit)."""
+    from mbus_framework.errors import one_line
     from mbus_framework.interfaces.registry import default_registry
 
     reg = default_registry()
@@ -84,16 +86,16 @@ def list_plugins() -> str:
         lines.append(f"{kind}s:")
         for name in reg.names(kind):
             e = reg.entries[kind][name]
-            lines.append(f"  {name:<22} {e.spec.summary}  [{e.source}]")
+            lines.append(f"  {name:<22} {one_line(e.spec.summary, 160)}  [{one_line(e.source, 120)}]")
         if not reg.entries[kind]:
             lines.append("  (none)")
     if reg.broken:
         lines.append("broken plugins (skipped):")
         for b in reg.broken:
-            lines.append(f"  {b.name:<22} {b.error}  [{b.source}]")
+            lines.append(f"  {one_line(b.name, 64):<22} {b.error}  [{one_line(b.source, 120)}]")
     if reg.clashes:
         lines.append("name clashes (these names are unusable until one provider is removed):")
-        lines += [f"  {message}" for message in reg.clashes.values()]
+        lines += [f"  {one_line(message, 400)}" for message in reg.clashes.values()]
     return "\n".join(lines)
 
 

@@ -135,3 +135,31 @@ def test_a_bug_in_mbus_itself_is_one_line_with_the_traceback_saved(tmp_path, mon
     monkeypatch.setenv("MBUS_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         run_small(tmp_path / "debug")
+
+
+def test_long_or_multi_line_plugin_names_stay_on_one_line(tmp_path, monkeypatch):
+    """A third-party plugin that registers a model name with a newline (or 3,000 characters), and
+    an entry point named so: the plugin is listed as broken, saying why; --list-plugins keeps
+    one line per plugin and errors stay one short line."""
+    evil_name = "acme\nevil" + "x" * 400
+    evil = plugin(evil_name, mbus_medium_models=lambda: [
+        MediumModelSpec("kv\nsecond line" + "y" * 3000, KelvinVoigtChain, "summary\nover lines " + "s" * 900)])
+    fine = plugin("acme_fine", mbus_medium_models=lambda: [
+        MediumModelSpec("kv-acme.v2", KelvinVoigtChain, "summary\nover two lines")])
+    reg = use_registry(monkeypatch, (evil_name, evil), ("acme_fine", fine), entry_points=[
+        metadata.EntryPoint("bad\nentry" + "z" * 500, "acme_missing_module_51c2", "mbus_framework")])
+    broken = {b.name: b.error for b in reg.broken}
+    assert "must be one word of 1-64 printable characters" in broken[evil_name]
+    assert "kv-acme.v2" in reg.names("model")  # hyphens and dots are fine
+
+    listing = run_cli(["--list-plugins"])
+    assert listing.code == 0
+    lines = listing.out.splitlines()
+    assert all(len(line) <= 400 for line in lines), max(map(len, lines))
+    assert any(line.startswith("  kv-acme.v2 ") and line.rstrip().endswith("[registered in code]") for line in lines)
+    assert sum(line.startswith("  bad entry") for line in lines) == 1  # the newline folded
+    assert sum(line.startswith("  acme evil") for line in lines) == 1
+
+    o = run_small(tmp_path / "run", model={"name": "nope"})
+    assert_clean_outcome(o, ["model.name"])
+    assert "kv-acme.v2" in o.err and "bad entry" in o.err

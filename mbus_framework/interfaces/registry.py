@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mbus_framework.errors import PluginError, shown
+from mbus_framework.errors import PluginError, one_line, shown
 from mbus_framework.interfaces.hookspecs import HOOKS_BY_KIND, SPEC_BY_KIND, PluginSpec
 from mbus_framework.interfaces.plugin_manager import BrokenPlugin, MbusPluginManager, get_plugin_manager, one_line_error
 from mbus_framework.suggest import choices_text, did_you_mean
@@ -91,15 +91,23 @@ class Registry:
         """Plugins that failed to load may be the missing provider: name them (first three)."""
         if not self.broken:
             return ""
-        listed = "; ".join(f"{b.name} ({shown(b.error, 120)}) [{b.source}]" for b in self.broken[:3])
+        listed = "; ".join(f"{one_line(b.name, 64)} ({shown(b.error, 120)}) [{one_line(b.source, 120)}]"
+                           for b in self.broken[:3])
         more = f" and {len(self.broken) - 3} more" if len(self.broken) > 3 else ""
         return f". Plugins that failed to load (--list-plugins): {listed}{more}"
+
+
+#: Longest plugin name accepted: a name is typed in configs and printed in one-line messages.
+MAX_NAME = 64
 
 
 def _check_spec(spec: object, kind: str, base: type) -> None:
     expected = SPEC_BY_KIND[kind]
     if not isinstance(spec, expected):
         raise TypeError(f"expected {expected.__name__} records, got {type(spec).__name__}")
+    name = spec.name
+    if not (isinstance(name, str) and 0 < len(name) <= MAX_NAME and name.isprintable() and not any(c.isspace() for c in name)):
+        raise ValueError(f"{kind} name {shown(name, 80)} must be one word of 1-{MAX_NAME} printable characters")
     if not (isinstance(spec.implementation, type) and issubclass(spec.implementation, base)):
         raise TypeError(f"{spec.name}: implementation must subclass {base.__name__}")
 
