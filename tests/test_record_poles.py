@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mbus_framework.estimation import global_search as gs
+from mbus_framework.estimation.exploration import record_windows
 from mbus_framework.estimation.poles import pole_candidates, record_poles
 from mbus_framework.interfaces.sample import Sample
 from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
@@ -89,3 +90,30 @@ def test_nearly_undamped_stiff_chains_from_the_default_start(E_sigma, eta_sigma,
     problem, sigma = record(model, theta, 11, bit, fs, 6200, 0.04, seed=11, taps=[9, 8, 6], state=779)
     fit = ScipyLM(ScipyLMOptions()).solve(problem)
     assert_recovered(fit, theta, crb(problem, theta, sigma), "ringing chain")
+
+
+def test_record_windows_are_prefixes_that_double_up_to_the_record():
+    model, theta = ringing_chain(3.2e12, 30.0, 1.6e12, 5.0)
+    problem, _ = record(model, theta, 9, 2.5e-6, 6.25e6, 2000, 0.05, seed=1)
+    windows = record_windows(problem, 4)
+    assert [n for n, _ in windows] == [125, 250, 500, 1000]
+    for n, w in windows:
+        np.testing.assert_array_equal(w.y, problem.y[:n])
+        np.testing.assert_array_equal(w.u, problem.u[:n])
+        assert w.dt == problem.dt and w.model is problem.model
+    assert [n for n, _ in record_windows(problem, 6, shortest=100)] == [125, 250, 500, 1000]
+    assert record_windows(problem, 0) == []
+    assert record_windows(dataclasses.replace(problem, output_filter=lambda y, dt: y), 4) == []
+
+
+def test_a_ringing_chain_is_found_through_record_windows():
+    """A stiff, nearly undamped 2.5 cm slice at 0.4 us / 25 MS/s: the pole start's full-record
+    basin is too narrow, its fits on the first N/16 ... N/2 samples lead into it."""
+    model, theta = ringing_chain(8e11, 40.0, 1.2e12, 20.0, L=0.025, rho=1200.0, D=0.01905)
+    problem, sigma = record(model, theta, 11, 0.4e-6, 25e6, 6200, 0.04, seed=11, taps=[9, 8, 6], state=779)
+    fit = ScipyLM(ScipyLMOptions()).solve(problem)
+    assert_recovered(fit, theta, crb(problem, theta, sigma), "ringing slice")
+    winner = fit.strategy["starts"][fit.strategy["winner"]]
+    assert winner["origin"] == "record poles"
+    stages = [rec["stage"] for rec in fit.trace]
+    assert stages[0] == "first 387 samples" and "first 3100 samples" in stages

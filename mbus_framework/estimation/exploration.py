@@ -132,3 +132,26 @@ def residual_autocorrelation(r: np.ndarray, lags: int = 10) -> float:
     if denom <= 0 or not np.isfinite(denom):
         return 0.0
     return float(np.mean([abs(r[:-k] @ r[k:]) / denom for k in range(1, lags + 1)]))
+
+
+def record_windows(problem: "FitProblem", stages: int, shortest: int = 64) -> list[tuple[int, "FitProblem"]]:
+    """Time continuation: the problem on the record's first N/2^k samples, k = stages..1
+    (windows shorter than ``shortest`` samples are left out); empty when an output filter or a
+    noise filter is tied to the whole record.
+
+    A lightly damped chain rings on through the record, so a small error in a mode frequency
+    grows into a phase error proportional to time: the cost basin of the full record is as
+    narrow as 1/(f N dt) in relative frequency, that of a window 2^k times wider. Each window's
+    minimum starts the next, twice as long.
+    """
+    import dataclasses
+
+    if stages <= 0 or problem.output_filter is not None or problem.noise_filter is not None:
+        return []
+    n_all = len(problem.y)
+    out = []
+    for k in range(stages, 0, -1):
+        n = n_all >> k
+        if n >= shortest:
+            out.append((n, dataclasses.replace(problem, t=problem.t[:n], u=problem.u[:n], y=problem.y[:n])))
+    return out

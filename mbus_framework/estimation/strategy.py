@@ -19,13 +19,15 @@ medium model and any local solver (``local_fit``):
 3. **Time-domain local fits** from the candidates, best first, at most ``n_starts`` of them;
    when none is accepted, up to ``pole_starts`` more from parameters whose poles match the
    record's subspace-identified poles (:mod:`mbus_framework.estimation.poles`): a lightly
-   damped chain rings in lines narrower than the scan's grid.
+   damped chain rings in lines narrower than the scan's grid. These are fitted on the record's
+   first N/16 ... N/2 samples before the whole record (``pole_windows``, time continuation).
 4. **Acceptance by the noise level, not by whiteness alone** (:mod:`mbus_framework.estimation.acceptance`):
    a minimum is accepted when no input-related structure is left in its residual (an F test
    of a model-free FIR fit), its variance agrees with the repeated periods' noise when the
    record is periodic, and its residual is white. Otherwise the search goes on; when the
-   candidates are spent, a multi-start around the best minimum follows
-   (``fallback_starts``, time-scale alignment and band continuation in the time domain), and
+   candidates are spent, a multi-start around the best distinct minima in turn follows
+   (``fallback_starts``, ``fallback_anchors``; time-scale alignment and band continuation in
+   the time domain), and
    a minimum that is still not accepted is reported as such (result.json warns).
 5. The best minimum is refined on the full record.
 
@@ -48,6 +50,7 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
     align_time_scale,
     coordinate_scan,
     residual_autocorrelation,
+    record_windows,
     residual_whiteness,
     signal_bandwidth,
     time_exponents,
@@ -77,7 +80,12 @@ class StrategyOptions(BaseModel):
     pole_starts: int = Field(3, ge=0, description="time-domain fits from starts whose poles match the record's "
                                                   "subspace-identified poles (lightly damped chains), when the "
                                                   "scan's were not accepted")
-    fallback_starts: int = Field(6, ge=0, description="multi-start around the best minimum when none was accepted")
+    pole_windows: int = Field(4, ge=0, description="pole starts: first fitted on the record's first N/2^k "
+                                                   "samples, k = pole_windows..1, then on the whole record "
+                                                   "(time continuation for ringing chains; 0 = off)")
+    fallback_starts: int = Field(6, ge=0, description="multi-start around the best minima when none was accepted")
+    fallback_anchors: int = Field(2, ge=1, description="fallback starts are shared in turn among this many of the "
+                                                       "best distinct minima found")
     bands: list[float] = Field(
         default_factory=lambda: [0.3],
         description="fallback starts: low-pass stages before the full-band local fit, as fractions of the "
@@ -150,6 +158,7 @@ class _Search:
         self.filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
         self.floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
         self.best: LocalResult | None = None
+        self.minima: list[LocalResult] = []  # every time-domain fit's end point
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
         self._spectrum = None
@@ -232,8 +241,9 @@ class _Search:
         return found
 
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
-                  explore: bool = False) -> bool:
-        """One time-domain local fit (band stages, then the full band); True when accepted."""
+                  explore: bool = False, windows: int = 0) -> bool:
+        """One time-domain local fit (band stages or ``windows`` record windows, then the full
+        record); True when accepted."""
         o, p = self.options, self.problem
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
@@ -252,6 +262,10 @@ class _Search:
             res = self.local_fit(p, theta, bf, o.stage_max_nfev, False)
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
             path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
+        for n, window in record_windows(p, windows):
+            res = self.local_fit(window, theta, None, o.stage_max_nfev, False)
+            self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
+            path += _stage_trace(res, f"first {n} samples")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
         precise = not explore and not origin.endswith("(as given)")
         res = self.local_fit(p, theta, None, (10 if precise else 2) * o.stage_max_nfev, precise)
@@ -261,6 +275,7 @@ class _Search:
         entry.update(end=dict(zip(self.names, map(float, res.theta))), cost=res.cost, verdict=verdict.as_dict(),
                      residual_autocorrelation=verdict.whiteness)
         self.report.starts.append(entry)
+        self.minima.append(res)
         if self.best is None or res.cost < self.best.cost * (1 - 1e-9) - self.floor:
             self.best, self.verdict, self.report.winner = res, verdict, entry["index"]
         if self.progress:
@@ -278,17 +293,26 @@ class _Search:
                      whiteness_threshold=o.whiteness_threshold if o.accept_white else np.inf,
                      white_noise=p.noise_filter is None, lags=o.residual_lags)
 
+    def anchors(self) -> list[np.ndarray]:
+        """The ``fallback_anchors`` lowest-cost minima found, distinct (2 % in every parameter)."""
+        out: list[np.ndarray] = []
+        for res in sorted(self.minima, key=lambda r: r.cost):
+            if len(out) < self.options.fallback_anchors and not any(_near(res.theta, a) for a in out):
+                out.append(res.theta)
+        return out
+
     def fallback(self, out_of_time=lambda: False) -> bool:
-        """Sobol starts around the best minimum, aligned and scanned in the time domain."""
+        """Sobol starts around the best minima (in turn), aligned and scanned in the time domain."""
         o, p = self.options, self.problem
         if not o.fallback_starts or self.best is None:
             return False
         free = p.free & np.array([q.log_scale for q in p.parameters])
         design = gs.sobol(max(int(free.sum()), 1), o.fallback_starts, o.seed)
-        anchor = self.best.theta
-        for row in design:
+        anchors = self.anchors()
+        for i, row in enumerate(design):
             if out_of_time():
                 break
+            anchor = anchors[i % len(anchors)]
             th = anchor.copy()
             th[free] = anchor[free] * np.exp((2 * row[: free.sum()] - 1) * np.log(o.spread))
             if self.try_start(np.clip(th, p.lower, p.upper), "fallback multi-start", explore=True):
@@ -375,7 +399,7 @@ def search(
                 break
             if s.best is not None and _near(c.theta, s.best.theta, 1e-3):
                 continue
-            if s.try_start(c.theta, "record poles"):
+            if s.try_start(c.theta, "record poles", windows=o.pole_windows):
                 accepted = True
                 break
     # 4. last resort: around the best minimum
