@@ -78,7 +78,7 @@ def _parser() -> argparse.ArgumentParser:
 def list_plugins() -> str:
     """One line per plugin (third-party summaries and sources folded and cut to fit)."""
     from mbus_framework.errors import one_line
-    from mbus_framework.interfaces.registry import default_registry
+    from mbus_framework.interfaces.registry import MAX_NAME, default_registry
 
     reg = default_registry()
     lines = []
@@ -86,13 +86,13 @@ def list_plugins() -> str:
         lines.append(f"{kind}s:")
         for name in reg.names(kind):
             e = reg.entries[kind][name]
-            lines.append(f"  {name:<22} {one_line(e.spec.summary, 160)}  [{one_line(e.source, 120)}]")
+            lines.append(f"  {name:<22} {one_line(e.spec.summary, 160)}  [{e.source}]")
         if not reg.entries[kind]:
             lines.append("  (none)")
     if reg.broken:
         lines.append("broken plugins (skipped):")
         for b in reg.broken:
-            lines.append(f"  {one_line(b.name, 64):<22} {b.error}  [{one_line(b.source, 120)}]")
+            lines.append(f"  {one_line(b.name, MAX_NAME):<22} {b.error}  [{b.source}]")
     if reg.clashes:
         lines.append("name clashes (these names are unusable until one provider is removed):")
         lines += [f"  {one_line(message, 400)}" for message in reg.clashes.values()]

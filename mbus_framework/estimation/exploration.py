@@ -14,6 +14,7 @@ tools serve the last-resort multi-start around the best minimum found
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -144,8 +145,6 @@ def record_windows(problem: "FitProblem", stages: int, shortest: int = 64) -> li
     narrow as 1/(f N dt) in relative frequency, that of a window 2^k times wider. Each window's
     minimum starts the next, twice as long.
     """
-    import dataclasses
-
     if stages <= 0 or problem.output_filter is not None or problem.noise_filter is not None:
         return []
     n_all = len(problem.y)

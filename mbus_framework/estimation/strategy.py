@@ -27,8 +27,8 @@ medium model and any local solver (``local_fit``):
    record is periodic, and its residual is white. Otherwise the search goes on; when the
    candidates are spent, a multi-start around the best distinct minima in turn follows
    (``fallback_starts``, ``fallback_anchors``; time-scale alignment and band continuation in
-   the time domain), and
-   a minimum that is still not accepted is reported as such (result.json warns).
+   the time domain), and a minimum that is still not accepted is reported as such
+   (result.json warns).
 5. The best minimum is refined on the full record.
 
 Everything tried is reported (:class:`SearchReport`), so result.json says what won and why.
@@ -49,8 +49,8 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
     BandFilter,
     align_time_scale,
     coordinate_scan,
-    residual_autocorrelation,
     record_windows,
+    residual_autocorrelation,
     residual_whiteness,
     signal_bandwidth,
     time_exponents,

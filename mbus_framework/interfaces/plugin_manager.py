@@ -52,7 +52,7 @@ class MbusPluginManager(pluggy.PluginManager):
         for ep in _entry_points(group):
             dist = getattr(ep, "dist", None)
             source = f"{dist.name} {dist.version}" if dist is not None else "(unknown distribution)"
-            source += f" [{ep.value}]"
+            source = one_line(f"{source} [{ep.value}]", 120)  # shown in listings and one-line errors
             if self.has_plugin(ep.name) or self.is_blocked(ep.name):
                 continue
             try:

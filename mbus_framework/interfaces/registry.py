@@ -24,6 +24,10 @@ KIND_BASES = {
 }
 
 
+#: Longest plugin name accepted: a name is typed in configs and printed in one-line messages.
+MAX_NAME = 64
+
+
 @dataclass(frozen=True)
 class Entry:
     spec: PluginSpec
@@ -91,14 +95,9 @@ class Registry:
         """Plugins that failed to load may be the missing provider: name them (first three)."""
         if not self.broken:
             return ""
-        listed = "; ".join(f"{one_line(b.name, 64)} ({shown(b.error, 120)}) [{one_line(b.source, 120)}]"
-                           for b in self.broken[:3])
+        listed = "; ".join(f"{one_line(b.name, MAX_NAME)} ({shown(b.error, 120)}) [{b.source}]" for b in self.broken[:3])
         more = f" and {len(self.broken) - 3} more" if len(self.broken) > 3 else ""
         return f". Plugins that failed to load (--list-plugins): {listed}{more}"
-
-
-#: Longest plugin name accepted: a name is typed in configs and printed in one-line messages.
-MAX_NAME = 64
 
 
 def _check_spec(spec: object, kind: str, base: type) -> None:
@@ -106,7 +105,8 @@ def _check_spec(spec: object, kind: str, base: type) -> None:
     if not isinstance(spec, expected):
         raise TypeError(f"expected {expected.__name__} records, got {type(spec).__name__}")
     name = spec.name
-    if not (isinstance(name, str) and 0 < len(name) <= MAX_NAME and name.isprintable() and not any(c.isspace() for c in name)):
+    one_word = isinstance(name, str) and name.isprintable() and len(name.split()) == 1
+    if not (one_word and len(name) <= MAX_NAME):
         raise ValueError(f"{kind} name {shown(name, 80)} must be one word of 1-{MAX_NAME} printable characters")
     if not (isinstance(spec.implementation, type) and issubclass(spec.implementation, base)):
         raise TypeError(f"{spec.name}: implementation must subclass {base.__name__}")
