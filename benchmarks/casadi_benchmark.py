@@ -69,7 +69,7 @@ def table_3_1_problem(tmp: Path):
 
 
 def casadi_fit(problem, base: dict, **overrides):
-    from plugins.solvers.casadi_collocation import CasadiCollocation, CasadiCollocationOptions
+    from mbus_plugins.solvers.casadi_collocation import CasadiCollocation, CasadiCollocationOptions
 
     opts = CasadiCollocationOptions.model_validate({**base, **overrides})
     t0 = time.perf_counter()
@@ -115,7 +115,7 @@ def main(argv=None) -> int:
 
     from mbus_framework.studies.common import machine_info
     from mbus_framework.estimation.uncertainty import from_jacobian
-    from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+    from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
     load_before = machine_info()["load_average_1min"]
     with tempfile.TemporaryDirectory() as tmp:

@@ -161,7 +161,7 @@ def run_case(case: dict) -> dict:
     from mbus_framework.api import fit
     from mbus_framework.engine.simulation import simulate_with_sensitivities
     from mbus_framework.interfaces.sample import Sample
-    from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
     D = case.get("diameter", DIAMETER)
     model = KelvinVoigtChain(Sample(case["length"], D, case["density"]), KelvinVoigtOptions(n_elements=case["n"]))

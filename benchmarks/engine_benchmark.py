@@ -80,8 +80,8 @@ from dissertation_method import (  # noqa: E402
 
 from mbus_framework.engine import simulation as sim  # noqa: E402
 from mbus_framework.interfaces.sample import Sample  # noqa: E402
-from plugins.excitations.prbs import Prbs, PrbsOptions  # noqa: E402
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions  # noqa: E402
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions  # noqa: E402
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions  # noqa: E402
 
 TRUTH = np.array([3.0e8, 15.0, 5.0e7, 12.0])  # k_sigma, b_sigma, k_tau, b_tau (Table 3.1)
 SECOND_SET = np.array([0.65, 0.5, 0.65, 0.5])  # -35 %, -50 %, -35 %, -50 %

@@ -24,6 +24,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 from contextlib import contextmanager
 from typing import Iterator, Sequence
 
+from mbus_framework import __version__
 from mbus_framework.errors import MbusError
 
 
@@ -33,6 +34,7 @@ def _parser() -> argparse.ArgumentParser:
         description="Model-based ultrasound identification of viscoelastic materials.",
     )
     p.add_argument("config", nargs="?", help="run configuration (YAML)")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     p.add_argument("-o", "--out", metavar="OUTDIR", help="output folder (default: runs/<time>-<config>)")
     p.add_argument(
         "--set",

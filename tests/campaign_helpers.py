@@ -67,8 +67,8 @@ def simulate_record(path: Path, truth: dict[str, float], seed: int, n_samples: i
     """A recorded t,u,y CSV of the test rig's medium, made with the engine directly."""
     from mbus_framework.engine.simulation import simulate
     from mbus_framework.interfaces.sample import Sample
-    from plugins.excitations.prbs import Prbs, PrbsOptions
-    from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+    from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
     s = BASE["sample"]
     model = KelvinVoigtChain(Sample(s["length"], s["diameter"], s["density"]), KelvinVoigtOptions(n_elements=4))

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from fakes.campaign_tables import mark_failed, schema_table
 from mbus_framework.analysis.cli import main
-from mbus_framework.analysis.property_calibration import PropertyCalibration
-from mbus_framework.analysis.regression import fit_line
+from mbus_framework.analysis.calibrate.property_calibration import PropertyCalibration
+from mbus_framework.analysis.calibrate.regression import fit_line
 from mbus_framework.errors import DataError
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from fakes.campaign_tables import PROPS, schema_table
 from mbus_framework.analysis.cli import main
-from mbus_framework.analysis.regression import fit_line
+from mbus_framework.analysis.calibrate.regression import fit_line
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "configs" / "campaigns" / "potatoes.yaml"

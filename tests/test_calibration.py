@@ -26,8 +26,8 @@ from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.pipeline.config import validate_options
 from mbus_framework.studies.transducer_calibration import run_calibration
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
 from test_report import assert_folder_report
 
 LENGTHS = [0.0, 0.005, 0.010, 0.015, 0.020, 0.025]

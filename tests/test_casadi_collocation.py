@@ -17,9 +17,9 @@ from mbus_framework.estimation.problem import FitProblem
 from mbus_framework.pipeline.storage import to_jsonable
 from mbus_framework.estimation.strategy import BandFilter
 from mbus_framework.testing.solvers import contract_problem
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.casadi_collocation import (
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.casadi_collocation import (
     CasadiCollocation,
     CasadiCollocationOptions,
     butterworth_ss,
@@ -27,7 +27,7 @@ from plugins.solvers.casadi_collocation import (
     stability_polynomials,
     transition_function,
 )
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 TABLE_3_1 = np.array([3.0e8, 15.0, 5.0e7, 12.0])
 SET_1 = np.array([2.0, 2.5, 2.0, 2.5])  # dissertation initial set 1 (+100 %, +150 %, ...)

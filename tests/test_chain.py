@@ -22,8 +22,8 @@ from mbus_framework.engine.chain import (
 )
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.testing.models import MediumModelContract, response
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.maxwell import MaxwellChain, MaxwellOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.maxwell import MaxwellChain, MaxwellOptions
 
 TABLE_3_1 = Sample(length=0.05, diameter=0.0254, density=1000.0)
 THETA_3_1 = np.array([3.0e8, 15.0, 5.0e7, 12.0])

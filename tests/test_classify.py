@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 
 from fakes.campaign_tables import TABLE_4_2, TABLE_4_3, grouped_table, mark_failed
-from mbus_framework.analysis.classify import (DISSERTATION_SETS, classify, confusion_matrix, feature_sets,
+from mbus_framework.analysis.classify.model import (DISSERTATION_SETS, classify, confusion_matrix, feature_sets,
                                               kmeans_predict, letters_and_pairs, set_label)
-from mbus_framework.analysis.classify_report import PERCENT_ROW, layout_table
+from mbus_framework.analysis.classify.report import PERCENT_ROW, layout_table
 from mbus_framework.analysis.cli import main
 from mbus_framework.errors import DataError
 

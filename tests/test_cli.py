@@ -98,7 +98,7 @@ def test_result_json_schema(potato_run):
     assert isinstance(solver["status"], int) and solver["status"] > 0
     assert isinstance(solver["message"], str) and solver["message"]
     assert isinstance(solver["nfev"], int) and solver["nfev"] > 0
-    assert isinstance(solver["wall_time_s"], float) and 0 < solver["wall_time_s"] < 60
+    assert isinstance(solver["wall_time_s"], float) and solver["wall_time_s"] > 0
 
 
 def test_run_folder_contents(potato_run):
@@ -184,7 +184,7 @@ def small_config(tmp_path: Path, **backend) -> Path:
 
 
 def test_measurement_is_written_even_when_the_solver_raises(tmp_path, capsys, monkeypatch):
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     seen = {}
 
@@ -206,7 +206,7 @@ def test_measurement_is_written_even_when_the_solver_raises(tmp_path, capsys, mo
 
 def test_measurement_is_written_even_when_the_solver_crashes(tmp_path, monkeypatch):
     """A bug in a solver (not a user error) propagates, but the data are already on disk."""
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     def crashing_solve(self, problem, progress=None):
         raise ZeroDivisionError("bug")
@@ -219,7 +219,7 @@ def test_measurement_is_written_even_when_the_solver_crashes(tmp_path, monkeypat
 
 
 def test_interrupt_exits_130_with_the_data_saved(tmp_path, capsys, monkeypatch):
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     def interrupted(self, problem, progress=None):
         raise KeyboardInterrupt
@@ -232,7 +232,7 @@ def test_interrupt_exits_130_with_the_data_saved(tmp_path, capsys, monkeypatch):
 
 
 def test_instrument_error_exits_3(tmp_path, capsys, monkeypatch):
-    from plugins.backends.simulated import SimulatedBackend
+    from mbus_plugins.backends.simulated import SimulatedBackend
 
     def failing_acquire(self, context):
         raise InstrumentError("DS340 on /dev/ttyUSB0: no reply to *IDN?")

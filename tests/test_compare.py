@@ -19,11 +19,11 @@ from mbus_framework.studies.compare import (
 from mbus_framework.interfaces.model import StateSpace
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.maxwell import MaxwellChain, MaxwellOptions
-from plugins.models.sls import SlsChain, SlsOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.maxwell import MaxwellChain, MaxwellOptions
+from mbus_plugins.models.sls import SlsChain, SlsOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 from test_report import assert_folder_report
 
 SAMPLE = Sample(length=0.05, diameter=0.0254, density=1000.0)

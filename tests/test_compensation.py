@@ -14,7 +14,7 @@ from mbus_framework.interfaces.backend import Measurement
 from mbus_framework.pipeline.config import load_config, validate_options
 from mbus_framework.pipeline.run import build_components, execute
 from mbus_framework.studies.transducer_calibration import run_calibration
-from plugins.compensators.transfer_function import (
+from mbus_plugins.compensators.transfer_function import (
     TransferFunctionCompensator,
     TransferFunctionOptions,
     band_window,

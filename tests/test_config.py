@@ -443,7 +443,7 @@ def test_unknown_names_in_the_simulated_truth(tmp_path, registry, override, frag
 
 
 def test_validate_options_without_options_uses_defaults():
-    from plugins.models.kelvin_voigt import KelvinVoigtOptions
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtOptions
 
     assert validate_options(KelvinVoigtOptions, None, "model.options").n_elements == 10
     msg = config_error(validate_options, KelvinVoigtOptions, "ten", "model.options", "f.yaml")

@@ -14,9 +14,9 @@ from mbus_framework.engine.control_interop import (
 )
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.maxwell import MaxwellChain, MaxwellOptions
-from plugins.models.sls import SlsChain, SlsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.maxwell import MaxwellChain, MaxwellOptions
+from mbus_plugins.models.sls import SlsChain, SlsOptions
 
 SAMPLE = Sample(length=0.05, diameter=0.0254, density=1000.0)
 DT = 1 / 6.25e6

@@ -10,12 +10,12 @@ from scipy import stats
 from sklearn.base import clone
 from sklearn.linear_model import LinearRegression
 
-from mbus_framework.analysis.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
-from mbus_framework.analysis.crispness import (
+from mbus_framework.analysis.crispness.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
+from mbus_framework.analysis.crispness.validation import (
     fold_seeds, leave_one_out, rank, recommend_structure, ridge_baseline, sensitivities, structure_comparison,
 )
-from mbus_framework.analysis.regressor import LMNetworkRegressor
-from mbus_framework.analysis.virtual_panel import LogisticRelation
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.virtual_panel import LogisticRelation
 
 
 def test_agreement_against_scipy_linregress():

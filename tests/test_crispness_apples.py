@@ -87,9 +87,9 @@ def test_a_single_slice_is_identified_within_its_standard_errors(slice_fit):
 def test_done_when_on_a_table_from_the_truth_with_estimation_noise(slice_fit, tmp_path):
     """Leave-one-out r >= 0.9 with the inputs the relation uses, and the sensitivities of a
     network trained on all 46 apples rank them as the relation does."""
-    from mbus_framework.analysis.crispness import leave_one_out, rank, sensitivities
-    from mbus_framework.analysis.panel import join_scores
-    from mbus_framework.analysis.regressor import LMNetworkRegressor
+    from mbus_framework.analysis.crispness.validation import leave_one_out, rank, sensitivities
+    from mbus_framework.analysis.crispness.panel import join_scores
+    from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 
     gen = generator()
     apples = gen.draw_apples()

@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 
 from mbus_framework.analysis.cli import main
-from mbus_framework.analysis.crispness_model import CrispnessModel
-from mbus_framework.analysis.network import MLP, MinMaxScaling
-from mbus_framework.analysis.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.model import CrispnessModel
+from mbus_framework.analysis.crispness.network import MLP, MinMaxScaling
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 from virtual_apples import physics_table
 
 FAST = ["--structures", "2,1-1", "--members", "2", "--restarts", "1", "--seed", "3"]
@@ -150,7 +150,7 @@ def test_user_errors_are_one_line(files, analysis, tmp_path, capsys):
 
 
 def test_command_defaults_match_the_library():
-    from mbus_framework.analysis import crispness, crispness_command, crispness_workflow
+    from mbus_framework.analysis.crispness import command as crispness_command, validation as crispness, workflow as crispness_workflow
 
     assert crispness_workflow._structures(crispness_command.DEFAULT_STRUCTURES) == list(crispness.DEFAULT_STRUCTURES)
     est, cli = LMNetworkRegressor(), _args()
@@ -161,7 +161,7 @@ def test_command_defaults_match_the_library():
 def _args(*argv):
     import argparse
 
-    from mbus_framework.analysis.crispness_command import add_arguments
+    from mbus_framework.analysis.crispness.command import add_arguments
 
     p = argparse.ArgumentParser()
     add_arguments(p, "crispness")

@@ -20,9 +20,9 @@ from mbus_framework.studies.design import (
     rank_excitations,
     run_design,
 )
-from plugins.backends.transducers import TransducerPair, TransducerPairOptions
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.backends.transducers import TransducerPair, TransducerPairOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from test_report import assert_folder_report
 
 FS, N = 25e6, 5000

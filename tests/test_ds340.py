@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mbus_framework.errors import InstrumentError
-from plugins.instruments.ds340 import (
+from mbus_plugins.instruments.ds340 import (
     DS340,
     DS340Options,
     checksum_bytes,

@@ -11,9 +11,9 @@ import pytest
 
 from mbus_framework.api import fit
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.frequency_domain import FrequencyDomain, FrequencyDomainOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.frequency_domain import FrequencyDomain, FrequencyDomainOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 from tests.test_global_minimum import record
 
 POTATO = {"E_sigma": 2.5e6, "eta_sigma": 150.0, "E_tau": 6.0e5, "eta_tau": 150.0}

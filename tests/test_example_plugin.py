@@ -18,11 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbus_framework import registry as registry_module
+from mbus_framework.interfaces import registry as registry_module
 from mbus_framework.cli import main
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.sample import Sample
+from mbus_framework.plugins import Registry, Sample, new_plugin_manager
 from mbus_framework.testing.models import MediumModelContract
 
 ROOT = Path(__file__).resolve().parents[1]

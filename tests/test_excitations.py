@@ -10,10 +10,10 @@ from scipy.signal import hilbert
 from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError, DataError
 from mbus_framework.interfaces.excitation import QuantizeOptions, Waveform, crest_factor, power_spectrum, quantize_waveform
-from plugins.excitations.from_file import FromFile, FromFileOptions
-from plugins.excitations.multisine import Multisine, MultisineOptions
-from plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
-from plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
+from mbus_plugins.excitations.from_file import FromFile, FromFileOptions
+from mbus_plugins.excitations.multisine import Multisine, MultisineOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
+from mbus_plugins.excitations.sine_sweep import SineSweep, SineSweepOptions
 
 
 def make(cls, **options):

@@ -14,7 +14,7 @@ from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 N = 200
 DT = 1e-6

@@ -10,8 +10,8 @@ from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.pipeline.storage import write_waveforms
-from plugins.backends.file import FileBackend, FileOptions, sniff_format
-from plugins.instruments.shots import (
+from mbus_plugins.backends.file import FileBackend, FileOptions, sniff_format
+from mbus_plugins.instruments.shots import (
     ProcessingOptions,
     Reference,
     Shot,

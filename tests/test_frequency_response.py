@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.sls import SlsChain, SlsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.sls import SlsChain, SlsOptions
 
 
 def kv(n=6, L=0.03, rho=1050.0, D=0.0254):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mbus_framework.errors import InstrumentError
-from plugins.instruments.gds2000 import (
+from mbus_plugins.instruments.gds2000 import (
     ChannelOptions,
     GDS2000,
     GDS2000Options,

@@ -15,8 +15,8 @@ from scipy.signal import max_len_seq
 from mbus_framework.engine.simulation import simulate_with_sensitivities
 from mbus_framework.estimation.problem import FitProblem
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 #: Tables 4.2 and 4.3: density [kg/m^3], E_sigma [Pa], eta_sigma [Pa s], E_tau [Pa], eta_tau [Pa s]
 CHAPTER4 = {

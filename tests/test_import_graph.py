@@ -2,8 +2,7 @@
 
 Edges are the imports a module makes at module level, including those under
 ``if TYPE_CHECKING:`` (a cycle through type hints is still a cycle in the design).
-Imports inside functions are deferred on purpose and are not edges. The alias modules
-(``mbus_framework.model`` and friends) are edges to the module they alias.
+Imports inside functions are deferred on purpose and are not edges.
 """
 from __future__ import annotations
 
@@ -78,18 +77,6 @@ def _resolve(node: ast.ImportFrom | ast.Import, importer: str, is_package: bool,
             yield target
 
 
-def _alias_targets(path: Path) -> list[str]:
-    """Targets of the ``sys.modules`` alias shims (``sys.modules[__name__] = target``)."""
-    text = path.read_text()
-    if "sys.modules[__name__]" not in text:
-        return []
-    return [
-        node.module
-        for node in ast.walk(ast.parse(text))
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith(PACKAGE)
-    ]
-
-
 def import_graph() -> dict[str, set[str]]:
     files = {module_name(p): p for p in ROOT.rglob("*.py")}
     modules = set(files)
@@ -98,7 +85,6 @@ def import_graph() -> dict[str, set[str]]:
         tree = ast.parse(path.read_text(), filename=str(path))
         is_package = path.name == "__init__.py"
         edges = {t for node in _top_level_imports(tree) for t in _resolve(node, name, is_package, modules)}
-        edges |= set(_alias_targets(path))
         # A package's own __init__ is imported first by every submodule; it is not an edge.
         graph[name] = {e for e in edges if e != name and not name.startswith(e + ".")}
     return graph
@@ -188,3 +174,10 @@ def test_no_core_module_outside_the_engine_is_over_500_lines():
             if (rel := p.relative_to(ROOT).as_posix()) not in ENGINE_EXEMPT
             and (n := len(p.read_text(encoding="utf-8").splitlines())) > 500]
     assert not long, long
+
+
+def test_no_module_only_aliases_another():
+    """Plugin authors import one module, :mod:`mbus_framework.plugins`; no module is a
+    ``sys.modules`` alias of another (issue 29)."""
+    aliases = [p.relative_to(ROOT).as_posix() for p in ROOT.rglob("*.py") if "sys.modules[__name__]" in p.read_text()]
+    assert not aliases, aliases

@@ -17,7 +17,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 NAMES = ["k_sigma", "b_sigma", "k_tau", "b_tau"]
 

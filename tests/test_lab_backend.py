@@ -17,11 +17,11 @@ import yaml
 from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError, InstrumentError
 from mbus_framework.interfaces.sample import Sample
-from plugins.backends.file import FileBackend, FileOptions
-from plugins.backends.lab import LabBackend, LabOptions
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.instruments.shots import load_run
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.backends.file import FileBackend, FileOptions
+from mbus_plugins.backends.lab import LabBackend, LabOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.instruments.shots import load_run
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 pytestmark = [
     pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs POSIX pseudo-terminals"),

@@ -3,11 +3,11 @@ from __future__ import annotations
 
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.testing.models import MediumModelContract
-from plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.layered import LayeredChain, LayeredOptions
-from plugins.models.maxwell import MaxwellChain, MaxwellOptions
-from plugins.models.sls import SlsChain, SlsOptions
+from mbus_plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.layered import LayeredChain, LayeredOptions
+from mbus_plugins.models.maxwell import MaxwellChain, MaxwellOptions
+from mbus_plugins.models.sls import SlsChain, SlsOptions
 
 SAMPLE = Sample(length=0.02, diameter=0.0254, density=1000.0)
 

@@ -11,13 +11,13 @@ from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.estimation.problem import FitProblem
 from mbus_framework.estimation.uncertainty import from_jacobian
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.models.layered import LayeredChain, LayeredOptions
-from plugins.models.maxwell import MaxwellChain, MaxwellOptions
-from plugins.models.sls import SlsChain, SlsOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.generalized_maxwell import GeneralizedMaxwellChain, GeneralizedMaxwellOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.layered import LayeredChain, LayeredOptions
+from mbus_plugins.models.maxwell import MaxwellChain, MaxwellOptions
+from mbus_plugins.models.sls import SlsChain, SlsOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 SAMPLE = Sample(length=0.05, diameter=0.0254, density=1000.0)
 DT = 1 / 6.25e6

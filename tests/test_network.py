@@ -10,9 +10,9 @@ from sklearn.base import clone
 from sklearn.model_selection import LeaveOneOut, cross_val_predict
 from sklearn.neural_network import MLPRegressor
 
-from mbus_framework.analysis.crispness import leave_one_out
-from mbus_framework.analysis.network import MLP, MinMaxScaling, split_train_validation, train_lm
-from mbus_framework.analysis.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.validation import leave_one_out
+from mbus_framework.analysis.crispness.network import MLP, MinMaxScaling, split_train_validation, train_lm
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 
 
 #: a 2-2-1 tanh teacher with moderate weights: its units are not saturated on [0, 1]^2, so the

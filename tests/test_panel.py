@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from mbus_framework.analysis.panel import (
+from mbus_framework.analysis.crispness.panel import (
     attach_group, check_panel, describe_by, join_scores, lsd_comparisons, one_way_anova, read_panel,
 )
-from mbus_framework.analysis.virtual_panel import PanelNoise, simulate_panel
+from mbus_framework.analysis.crispness.virtual_panel import PanelNoise, simulate_panel
 from mbus_framework.errors import DataError
 
 

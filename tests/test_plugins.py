@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-import mbus_framework
 from mbus_framework.interfaces import plugin_manager as pm_module
 from mbus_framework.interfaces import registry as registry_module
 from mbus_framework.cli import main
@@ -33,13 +32,13 @@ REPO = Path(__file__).resolve().parents[1]
 
 # The built-ins of the core issue: kind -> (config name, entry-point name, module).
 BUILTINS = {
-    "model": ("kelvin_voigt", "builtin.kelvin_voigt", "plugins.models.kelvin_voigt"),
-    "excitation": ("prbs", "builtin.prbs", "plugins.excitations.prbs"),
-    "backend": ("simulated", "builtin.simulated", "plugins.backends.simulated"),
-    "solver": ("scipy_lm", "builtin.scipy_lm", "plugins.solvers.scipy_lm"),
-    "compensator": ("none", "builtin.none", "plugins.compensators.none"),
+    "model": ("kelvin_voigt", "builtin.kelvin_voigt", "mbus_plugins.models.kelvin_voigt"),
+    "excitation": ("prbs", "builtin.prbs", "mbus_plugins.excitations.prbs"),
+    "backend": ("simulated", "builtin.simulated", "mbus_plugins.backends.simulated"),
+    "solver": ("scipy_lm", "builtin.scipy_lm", "mbus_plugins.solvers.scipy_lm"),
+    "compensator": ("none", "builtin.none", "mbus_plugins.compensators.none"),
 }
-FILE_BACKEND = ("backend", "file", "builtin.file", "plugins.backends.file")
+FILE_BACKEND = ("backend", "file", "builtin.file", "mbus_plugins.backends.file")
 ALL_BUILTINS = [(k, *v) for k, v in BUILTINS.items()] + [FILE_BACKEND]
 
 
@@ -224,7 +223,7 @@ def test_broken_plugin_error_is_one_line():
 
 
 def _good_excitation_spec():
-    from plugins.excitations.prbs import Prbs
+    from mbus_plugins.excitations.prbs import Prbs
 
     return ExcitationSpec("acme_prbs", Prbs, "a working plugin next to the broken ones")
 
@@ -257,7 +256,7 @@ BROKEN_HOOKS = {
     ),
     "compensator of the wrong interface": (
         "mbus_compensators",
-        lambda: [CompensatorSpec("acme_comp", __import__("plugins.solvers.scipy_lm", fromlist=["ScipyLM"]).ScipyLM)],
+        lambda: [CompensatorSpec("acme_comp", __import__("mbus_plugins.solvers.scipy_lm", fromlist=["ScipyLM"]).ScipyLM)],
         "acme_comp: implementation must subclass Compensator",
     ),
 }
@@ -307,7 +306,7 @@ def test_broken_plugin_does_not_take_a_run_down(tmp_path):
 # Name clashes
 # ---------------------------------------------------------------------------------------
 def test_clash_with_a_builtin_names_both_providers():
-    from plugins.models.kelvin_voigt import KelvinVoigtChain
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain
 
     impostor = plugin_module(
         "acme_impostor", mbus_medium_models=lambda: [MediumModelSpec("kelvin_voigt", KelvinVoigtChain, "mine")]
@@ -318,13 +317,13 @@ def test_clash_with_a_builtin_names_both_providers():
         reg.get("model", "kelvin_voigt")
     msg = str(info.value)
     assert "model 'kelvin_voigt' is registered twice" in msg
-    assert f"builtin.kelvin_voigt (mbus {mbus_version()} [plugins.models.kelvin_voigt])" in msg
+    assert f"builtin.kelvin_voigt (mbus {mbus_version()} [mbus_plugins.models.kelvin_voigt])" in msg
     assert "acme_impostor (registered in code)" in msg
     assert "\n" not in msg
 
 
 def test_clash_between_two_third_party_plugins():
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     a = plugin_module("acme_a", mbus_solvers=lambda: [SolverSpec("fast", ScipyLM, "a")])
     b = plugin_module("acme_b", mbus_solvers=lambda: [SolverSpec("fast", ScipyLM, "b")])
@@ -343,45 +342,27 @@ def test_same_plugin_name_twice_is_reported_not_fatal():
 
 
 # ---------------------------------------------------------------------------------------
-# The top-level `plugins` package is ours
+# The built-ins install as `mbus_plugins`, never as a top-level `plugins`
 # ---------------------------------------------------------------------------------------
-def our_locations() -> set[Path]:
-    """Where this project lives: this checkout, and where the installed distribution points."""
-    places = {REPO}
-    for dist in metadata.distributions():
-        if (dist.metadata["Name"] or "").lower() != "mbus":
-            continue
-        direct = dist.read_text("direct_url.json")
-        if direct and '"editable": true' in direct.replace(" ", "").replace('"editable":true', '"editable": true'):
-            import json
+def test_builtins_are_the_mbus_plugins_package_of_this_checkout():
+    import mbus_plugins
 
-            url = json.loads(direct)["url"]
-            if url.startswith("file://"):
-                places.add(Path(url[len("file://") :]).resolve())
-        for f in dist.files or []:
-            if str(f).replace("\\", "/") == "plugins/__init__.py":
-                places.add(Path(dist.locate_file("")).resolve())
-    return places
-
-
-def test_installed_plugins_package_is_ours():
-    import plugins
-
-    root = Path(plugins.__file__).resolve().parent.parent
-    assert root in our_locations(), f"'plugins' imported from {plugins.__file__}, not from this project"
-    assert root == Path(mbus_framework.__file__).resolve().parent.parent
+    assert Path(mbus_plugins.__file__).resolve().parent == REPO / "plugins"
     for _, _, _, module in ALL_BUILTINS:
+        assert module.startswith("mbus_plugins."), module
         mod = __import__(module, fromlist=["_"])
-        assert Path(mod.__file__).resolve().is_relative_to(root / "plugins")
+        assert Path(mod.__file__).resolve().is_relative_to(REPO / "plugins")
 
 
-def test_plugins_package_is_ours_from_another_working_directory(tmp_path):
-    code = "import plugins, mbus_framework; print(plugins.__file__); print(mbus_framework.__file__)"
-    out = subprocess.run(
-        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120, check=True
-    ).stdout.split()
-    assert Path(out[0]).resolve().parent.parent == Path(out[1]).resolve().parent.parent
-    assert Path(out[0]).resolve().parent.parent in our_locations()
+def test_no_top_level_plugins_package_is_installed(tmp_path):
+    """From any folder but the checkout, ``import plugins`` finds nothing of ours; ``mbus``
+    and ``mbus_framework`` both import."""
+    code = ("import importlib.util as u, mbus, mbus_framework; "
+            "print(u.find_spec('plugins') is None, mbus.__version__ == mbus_framework.__version__)")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120, check=True, env=env).stdout.split()
+    assert out == ["True", "True"]
 
 
 def test_a_users_own_plugins_folder_does_not_shadow_the_builtins(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 from mbus_framework.pipeline.config import validate_options
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.excitation import power_spectrum
-from plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions, mls_bits
 
 
 def prbs(**options) -> Prbs:

@@ -18,8 +18,8 @@ from mbus_framework.estimation import global_search as gs
 from mbus_framework.estimation.exploration import record_windows
 from mbus_framework.estimation.poles import pole_candidates, record_poles
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 from tests.test_global_minimum import assert_recovered, crb, record
 
 

@@ -23,7 +23,7 @@ from mbus_framework.errors import DataError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.interfaces.backend import Measurement
 from mbus_framework.pipeline.recorded_input import consistency_warnings, input_statistics
-from plugins.instruments.shots import burst_start
+from mbus_plugins.instruments.shots import burst_start
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -243,7 +243,7 @@ def test_designed_input_without_a_design_is_one_line(tmp_path, capsys):
 def test_lab_run_folder_without_a_config_excitation(tmp_path):
     """The waveform the generator played is saved with the shots: it aligns them; without it the
     burst onset does."""
-    from plugins.backends.file import FileBackend, FileOptions
+    from mbus_plugins.backends.file import FileBackend, FileOptions
     from test_file_backend_formats import designed, fake_shot, make_run
 
     from mbus_framework.interfaces.backend import AcquisitionContext

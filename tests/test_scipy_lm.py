@@ -13,9 +13,9 @@ from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.estimation.problem import FitProblem, FitResult
 from mbus_framework.estimation.uncertainty import from_jacobian
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 TABLE_3_1 = np.array([3.0e8, 15.0, 5.0e7, 12.0])
 SET_1 = np.array([2.0, 2.5, 2.0, 2.5])  # dissertation initial set 1 (+100 %, +150 %, ...)

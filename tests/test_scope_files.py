@@ -10,10 +10,10 @@ from mbus_framework.interfaces.backend import AcquisitionContext
 from mbus_framework.errors import DataError
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
-from plugins.backends.file import FileBackend, FileOptions
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.instruments.gds_csv import parse_number, read_gds_csv
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.backends.file import FileBackend, FileOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.instruments.gds_csv import parse_number, read_gds_csv
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 PRBS = {"order": 6, "bit_width": 2.4e-6, "amplitude": 1.0, "sample_rate": 5.0e6}
 SAMPLE = Sample(0.05, 0.0254, 1000.0)

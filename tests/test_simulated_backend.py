@@ -11,8 +11,8 @@ from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 SAMPLE = Sample(0.05, 0.0254, 1000.0)
 TRUTH = {"k_sigma": 3.0e8, "b_sigma": 15.0, "k_tau": 5.0e7, "b_tau": 12.0}

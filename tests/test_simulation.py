@@ -19,7 +19,7 @@ from mbus_framework.engine import simulation as sim
 from mbus_framework.engine.arrays import zeros_like_params
 from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 TABLE_3_1 = np.array([3.0e8, 15.0, 5.0e7, 12.0])  # k_sigma, b_sigma, k_tau, b_tau
 SAMPLE = Sample(length=0.05, diameter=0.0254, density=1000.0)

@@ -27,7 +27,7 @@ from mbus_framework.engine import simulation as sim
 from mbus_framework.engine.arrays import zeros_like_params
 from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
 from mbus_framework.interfaces.sample import Sample
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 control = pytest.importorskip("control")
 signal = pytest.importorskip("scipy.signal")
@@ -190,7 +190,7 @@ def test_matches_cvodes(case, hold):
 @pytest.mark.parametrize("hold", ["zoh", "foh"])
 def test_table_3_1_case_all_references(hold):
     """The dissertation's case (n = 10, 6.25 MS/s, PRBS) against every reference at once."""
-    from plugins.excitations.prbs import Prbs, PrbsOptions
+    from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
 
     model = kv(10)
     w = Prbs(PrbsOptions(order=9, bit_width=2.5e-6, sample_rate=6.25e6, n_samples=3000)).waveform()

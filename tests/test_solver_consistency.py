@@ -25,10 +25,10 @@ from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.estimation.problem import FitProblem
 from mbus_framework.estimation.uncertainty import from_jacobian
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.casadi_collocation import CasadiCollocation, CasadiCollocationOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.casadi_collocation import CasadiCollocation, CasadiCollocationOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 # Physical ranges (Table 3.1 is E_sigma 3.0 GPa, eta_sigma 148 Pa s, E_tau 0.63 GPa, eta_tau 150 Pa s)
 RANGES = {"E_sigma": (1.5e9, 4.0e9), "eta_sigma": (60.0, 400.0), "E_tau": (2.0e8, 1.0e9), "eta_tau": (60.0, 400.0)}

@@ -62,7 +62,7 @@ def test_out_of_band_noise_of_a_chain_record():
     then high, which is why it is reported, not used to accept a minimum.)"""
     from mbus_framework.engine.simulation import simulate
     from mbus_framework.interfaces.sample import Sample
-    from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
     model = KelvinVoigtChain(Sample(0.03, 0.0254, 1080.0), KelvinVoigtOptions(n_elements=10))
     theta = model.from_properties(dict(E_sigma=2.42e10, eta_sigma=7.18e3, E_tau=6.56e9, eta_tau=5.14e3))

@@ -18,7 +18,7 @@ from mbus_framework.pipeline.storage import (
     to_jsonable,
     write_waveforms,
 )
-from plugins.backends.file import FileBackend, FileOptions, read_record
+from mbus_plugins.backends.file import FileBackend, FileOptions, read_record
 
 
 def listing(folder: Path) -> list[str]:

@@ -25,9 +25,9 @@ from mbus_framework.estimation.strategy import (
     signal_bandwidth,
 )
 from mbus_framework.estimation.uncertainty import from_jacobian
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
-from plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.solvers.scipy_lm import ScipyLM, ScipyLMOptions
 
 
 @dataclass

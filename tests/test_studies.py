@@ -144,8 +144,8 @@ def test_monte_carlo_statistics_match_the_runs(tmp_path):
     # sigma = 10 % of the RMS of the noise-free output.
     from mbus_framework.interfaces.sample import Sample
     from mbus_framework.engine.simulation import simulate
-    from plugins.excitations.prbs import Prbs, PrbsOptions
-    from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+    from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+    from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
     model = KelvinVoigtChain(Sample(0.05, 0.0254, 1000.0), KelvinVoigtOptions(n_elements=4))
     wave = Prbs(PrbsOptions(order=9, bit_width=2.5e-6, sample_rate=6.25e6, n_samples=1500)).waveform()

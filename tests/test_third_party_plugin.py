@@ -25,11 +25,10 @@ import numpy as np
 import pytest
 
 from mbus_framework.errors import ConfigError, PluginError
-from mbus_framework.plugin_manager import new_plugin_manager
-from mbus_framework.registry import Registry
-from mbus_framework.run import execute
+from mbus_framework.plugins import Registry, new_plugin_manager
+from mbus_framework.pipeline.run import execute
 
-# The plugin as its author would ship it: one module, imports from mbus_framework only.
+# The plugin as its author would ship it: one module, imports from mbus_framework.plugins only.
 PLUGIN_SOURCE = textwrap.dedent(
     '''
     """acme: a one-mass viscoelastic model (the whole column as one rigid mass on a Kelvin-Voigt link)."""
@@ -38,9 +37,8 @@ PLUGIN_SOURCE = textwrap.dedent(
     import numpy as np
     from pydantic import BaseModel, ConfigDict, Field
 
-    from mbus_framework.arrays import zeros_like_params
-    from mbus_framework.hookspecs import MediumModelSpec, hookimpl
-    from mbus_framework.model import MediumModel, Parameter, Property, StateSpace
+    from mbus_framework.plugins import (MediumModel, MediumModelSpec, Parameter, Property, StateSpace, hookimpl,
+                                        zeros_like_params)
 
 
     class OneMassOptions(BaseModel):
@@ -203,7 +201,7 @@ def test_its_properties_work_as_truth_and_initial(config, registry, tmp_path):
 
 def test_static_gain_of_the_plugin_model_is_one():
     """Sanity of the plugin itself (a third party's own test would do this)."""
-    from mbus_framework.sample import Sample
+    from mbus_framework.plugins import Sample
 
     mod = plugin_module()
     model = mod.OneMass(Sample(L, D, RHO), mod.OneMassOptions())

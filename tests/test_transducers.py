@@ -14,14 +14,14 @@ from mbus_framework.interfaces.plugin_manager import new_plugin_manager
 from mbus_framework.interfaces.registry import Registry
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.pipeline.config import validate_options
-from plugins.backends.transducers import (
+from mbus_plugins.backends.transducers import (
     BandPass,
     TransducerPair,
     TransducerPairOptions,
     series,
 )
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 SAMPLE = Sample(0.03, 0.0254, 1080.0)
 PROPS = {"E_sigma": 2.42e10, "eta_sigma": 7.18e3, "E_tau": 6.56e9, "eta_tau": 5.14e3}

@@ -11,8 +11,8 @@ from mbus_framework.interfaces.sample import Sample
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.estimation.problem import FitProblem
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
-from plugins.excitations.prbs import Prbs, PrbsOptions
-from plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
+from mbus_plugins.excitations.prbs import Prbs, PrbsOptions
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
 
 def regression(rng, n=200, scales=(1.0, 1.0, 1.0)):

@@ -17,7 +17,7 @@ relation ``RELATION`` of the true properties,
 
 (crispness rises with normal stiffness most, with shear stiffness less, and falls with normal
 viscosity; the shear viscosity does not enter), and each assessor scores it with an own offset
-and gain and noise (``PANEL``; :mod:`mbus_framework.analysis.virtual_panel`).
+and gain and noise (``PANEL``; :mod:`mbus_framework.analysis.crispness.virtual_panel`).
 
 ``--stand-in-table`` writes, without running the campaign, a table in the campaign-table
 format from the same truth plus estimation noise drawn with the relative standard errors and
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mbus_framework.analysis.virtual_panel import LogisticRelation, PanelNoise, simulate_panel
+from mbus_framework.analysis.crispness.virtual_panel import LogisticRelation, PanelNoise, simulate_panel
 
 HERE = Path(__file__).resolve().parent
 SEED = 20100202

@@ -28,10 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mbus_framework.excitation import Waveform
-from mbus_framework.backend import AcquisitionContext
-from mbus_framework.registry import default_registry
-from mbus_framework.sample import Sample
+from mbus_framework.plugins import AcquisitionContext, Sample, Waveform, default_registry
 
 TRUTH = {"E_sigma": 2.42e10, "eta_sigma": 7.18e3, "E_tau": 6.56e9, "eta_tau": 5.14e3}
 SAMPLE = Sample(length=0.03, diameter=0.0254, density=1080.0)

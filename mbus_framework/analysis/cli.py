@@ -20,20 +20,22 @@ from typing import Sequence
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+from mbus_framework import __version__
 from mbus_framework.errors import MbusError
 
 #: subcommand -> (module under mbus_framework.analysis, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "classify": ("classify_command", "k-means and LDA (leave-one-out) by group, Tables 4.4/4.5"),
-    "calibrate": ("calibrate_command", "regress MBUS estimates on conventional tests, Table 6.1"),
-    "apply-calibration": ("calibrate_command", "convert MBUS estimates with a saved calibration"),
-    "crispness": ("crispness_command", "predict sensory scores with an LM-trained network, Ch. 7"),
-    "predict": ("crispness_command", "score new samples with a saved crispness model"),
+    "classify": ("classify.command", "k-means and LDA (leave-one-out) by group, Tables 4.4/4.5"),
+    "calibrate": ("calibrate.command", "regress MBUS estimates on conventional tests, Table 6.1"),
+    "apply-calibration": ("calibrate.command", "convert MBUS estimates with a saved calibration"),
+    "crispness": ("crispness.command", "predict sensory scores with an LM-trained network, Ch. 7"),
+    "predict": ("crispness.command", "score new samples with a saved crispness model"),
 }
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mbus-analyze", description="Analyses of an mbus campaign table.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
         sp = sub.add_parser(name, help=help_text, description=help_text)

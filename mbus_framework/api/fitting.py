@@ -112,7 +112,7 @@ def fit(
     """Fit a medium model to arrays: t [s] (uniform), input u, output y.
 
     ``sample`` is the geometry, ``{"length": L [m], "diameter": D [m], "density": rho [kg/m^3]}``
-    (or a :class:`~mbus_framework.sample.Sample`); ``model`` a registered medium model with its
+    (or a :class:`~mbus_framework.plugins.Sample`); ``model`` a registered medium model with its
     ``model_options``; ``initial`` and ``fixed`` parameters (or properties) as in a config's
     ``model`` section. ``config`` adds further config sections (``nuisance``, ``compensator``,
     ``identifiability``). Nothing is written unless ``out_dir`` is given; then it becomes a run

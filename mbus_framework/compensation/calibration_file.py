@@ -18,7 +18,7 @@ FORMAT = "mbus-calibration/1"
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class Calibration(_TransducerResponse):
-    """A saved G_TR(f): what :mod:`plugins.compensators.transfer_function` loads by path."""
+    """A saved G_TR(f): what :mod:`mbus_plugins.compensators.transfer_function` loads by path."""
 
     f: np.ndarray
     log_G_TR: np.ndarray

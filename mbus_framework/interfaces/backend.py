@@ -68,7 +68,7 @@ def check_record(path: Any, t, u, y) -> Measurement:
 
 
 class PluginLookup(Protocol):
-    """What a backend may use of the plugin registry (``mbus_framework.registry.Registry``)."""
+    """What a backend may use of the plugin registry (``mbus_framework.plugins.Registry``)."""
 
     def get(self, kind: str, name: str) -> Any: ...
 

@@ -45,31 +45,31 @@ class PluginSpec:
 
 @dataclass(frozen=True)
 class MediumModelSpec(PluginSpec):
-    implementation: type  # a subclass of mbus_framework.model.MediumModel
+    implementation: type  # a subclass of mbus_framework.plugins.MediumModel
     kind: ClassVar[str] = "model"
 
 
 @dataclass(frozen=True)
 class ExcitationSpec(PluginSpec):
-    implementation: type  # a subclass of mbus_framework.excitation.Excitation
+    implementation: type  # a subclass of mbus_framework.plugins.Excitation
     kind: ClassVar[str] = "excitation"
 
 
 @dataclass(frozen=True)
 class SolverSpec(PluginSpec):
-    implementation: type  # a subclass of mbus_framework.solver.Solver
+    implementation: type  # a subclass of mbus_framework.plugins.Solver
     kind: ClassVar[str] = "solver"
 
 
 @dataclass(frozen=True)
 class CompensatorSpec(PluginSpec):
-    implementation: type  # a subclass of mbus_framework.compensator.Compensator
+    implementation: type  # a subclass of mbus_framework.plugins.Compensator
     kind: ClassVar[str] = "compensator"
 
 
 @dataclass(frozen=True)
 class BackendSpec(PluginSpec):
-    implementation: type  # a subclass of mbus_framework.backend.Backend
+    implementation: type  # a subclass of mbus_framework.plugins.Backend
     kind: ClassVar[str] = "backend"
 
 

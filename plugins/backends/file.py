@@ -7,7 +7,7 @@ Formats (``format: auto`` picks by what ``path`` is):
 * ``.npz`` with arrays ``t``, ``u``, ``y`` of equal length;
 * a GDS-2000 CSV export (``key,value`` header rows such as ``Vertical Scale`` and
   ``Sampling Period``, then raw codes or ``time,value`` rows; see
-  :mod:`plugins.instruments.gds_csv`): ``path`` is the excitation channel's file and
+  :mod:`mbus_plugins.instruments.gds_csv`): ``path`` is the excitation channel's file and
   ``response_path`` the response channel's; the excitation channel is aligned with the designed
   excitation of the config and both are cut at the burst start (``processing``); without an
   excitation in the config the burst start is where the excitation channel leaves its rest;
@@ -45,8 +45,8 @@ from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
 
-from plugins.instruments.gds_csv import read_gds_csv
-from plugins.instruments.shots import (
+from mbus_plugins.instruments.gds_csv import read_gds_csv
+from mbus_plugins.instruments.shots import (
     SHOT_DIR,
     ProcessingOptions,
     Reference,

@@ -29,9 +29,9 @@ from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measu
 from mbus_framework.errors import InstrumentError, MbusError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.pipeline import interrupts
-from plugins.instruments.ds340 import DS340, DS340Options, scale_to_points
-from plugins.instruments.gds2000 import GDS2000, GDS2000Options
-from plugins.instruments.shots import (
+from mbus_plugins.instruments.ds340 import DS340, DS340Options, scale_to_points
+from mbus_plugins.instruments.gds2000 import GDS2000, GDS2000Options
+from mbus_plugins.instruments.shots import (
     SHOT_DIR,
     ProcessingOptions,
     Reference,

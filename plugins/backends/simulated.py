@@ -14,7 +14,7 @@ This is how "noise 10 %" of Table 3.1 is read (DESIGN.md, Section 2).
 
 Optional lab realities (absent options leave the record exactly as above):
 
-* ``transducers``: a virtual transducer pair (:mod:`plugins.backends.transducers`); u is then
+* ``transducers``: a virtual transducer pair (:mod:`mbus_plugins.backends.transducers`); u is then
   the generator voltage and y_medium becomes G_R * medium * G_T * u (eq. 5.1), simulated
   exactly as one continuous cascade.
 * ``scope``: 8-bit ADC quantisation of both channels with a vertical range, averaging over
@@ -43,7 +43,7 @@ from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.estimation.nuisance import delayed_prediction
 from mbus_framework.engine.simulation import simulate
-from plugins.backends.transducers import ScopeOptions, TransducerPair, TransducerPairOptions, adc, adc_step
+from mbus_plugins.backends.transducers import ScopeOptions, TransducerPair, TransducerPairOptions, adc, adc_step
 
 
 class NoiseOptions(BaseModel):

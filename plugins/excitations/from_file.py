@@ -27,7 +27,7 @@ from mbus_framework.errors import DataError
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
-from plugins.excitations.bounds import SAMPLE_RATE_RANGE, Amplitude, RecordSamples, SampleRate, samples
+from mbus_plugins.excitations.bounds import SAMPLE_RATE_RANGE, Amplitude, RecordSamples, SampleRate, samples
 
 
 class FromFileOptions(ExcitationOptions):

@@ -21,7 +21,7 @@ from pydantic import Field, model_validator
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
-from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate
+from mbus_plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate
 
 
 class MultisineOptions(ExcitationOptions):

@@ -20,7 +20,7 @@ from scipy.signal import max_len_seq
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
-from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
+from mbus_plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
 
 
 class PrbsOptions(ExcitationOptions):

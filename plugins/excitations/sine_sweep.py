@@ -19,7 +19,7 @@ from pydantic import Field, model_validator
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
-from plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
+from mbus_plugins.excitations.bounds import Amplitude, RecordSamples, SampleRate, samples
 
 
 class SineSweepOptions(ExcitationOptions):

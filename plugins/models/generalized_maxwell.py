@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, GeneralizedMaxwellLaw, KelvinVoigtLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
-from plugins.models.bounds import Elements
+from mbus_plugins.models.bounds import Elements
 
 
 class GeneralizedMaxwellOptions(BaseModel):

@@ -49,7 +49,7 @@ from mbus_framework.engine.chain import (
 )
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
-from plugins.models.bounds import Elements, check_elements
+from mbus_plugins.models.bounds import Elements, check_elements
 from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
 from mbus_framework.engine.physics import first_arrival_time
 from mbus_framework.interfaces.sample import Sample

@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from mbus_framework.engine.chain import ChainModel, MaxwellLaw
 from mbus_framework.interfaces.hookspecs import MediumModelSpec, hookimpl
-from plugins.models.bounds import Elements
+from mbus_plugins.models.bounds import Elements
 
 
 class MaxwellOptions(BaseModel):

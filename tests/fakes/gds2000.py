@@ -14,7 +14,7 @@ import re
 
 import numpy as np
 
-from plugins.instruments.gds2000 import block_bytes
+from mbus_plugins.instruments.gds2000 import block_bytes
 
 from .pty_device import PtyDevice
 

@@ -7,9 +7,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 import mbus_fractional_kv  # noqa: E402
-from mbus_framework.plugin_manager import new_plugin_manager  # noqa: E402
-from mbus_framework.registry import Registry  # noqa: E402
-from mbus_framework.sample import Sample  # noqa: E402
+from mbus_framework.plugins import Registry, Sample, new_plugin_manager  # noqa: E402
 from mbus_framework.testing.models import MediumModelContract  # noqa: E402
 
 

@@ -26,8 +26,16 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import nnls
 
-from mbus_framework.chain import ChainModel, KelvinVoigtLaw, LinkLaw, LinkMatrices, LinkParameter, stiffness
-from mbus_framework.hookspecs import MediumModelSpec, hookimpl
+from mbus_framework.plugins import (
+    ChainModel,
+    KelvinVoigtLaw,
+    LinkLaw,
+    LinkMatrices,
+    LinkParameter,
+    MediumModelSpec,
+    hookimpl,
+    stiffness,
+)
 
 
 class FractionalKelvinVoigtLaw(LinkLaw):

@@ -1,4 +1,4 @@
-"""The work behind ``mbus-analyze crispness`` / ``predict`` (arguments in crispness_command).
+"""The work behind ``mbus-analyze crispness`` / ``predict`` (arguments in crispness.command).
 
 ``run_crispness`` joins the panel's mean score per sample to the table, writes the panel
 statistics (Tables 7.1-7.3), compares network structures (Fig. 7.2), predicts every sample
@@ -15,15 +15,15 @@ import numpy as np
 import pandas as pd
 from sklearn.base import clone
 
-from mbus_framework.analysis import crispness_plots as plots
-from mbus_framework.analysis import crispness_report as report
-from mbus_framework.analysis.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
-from mbus_framework.analysis.crispness import (
+from mbus_framework.analysis.crispness import plots
+from mbus_framework.analysis.crispness import report
+from mbus_framework.analysis.crispness.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
+from mbus_framework.analysis.crispness.validation import (
     leave_one_out, rank, ridge_baseline, sensitivities, structure_comparison, structure_label,
 )
-from mbus_framework.analysis.crispness_model import CrispnessModel
-from mbus_framework.analysis.panel import attach_group, describe_by, join_scores, lsd_comparisons, one_way_anova, read_panel
-from mbus_framework.analysis.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.model import CrispnessModel
+from mbus_framework.analysis.crispness.panel import attach_group, describe_by, join_scores, lsd_comparisons, one_way_anova, read_panel
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 from mbus_framework.analysis.table import read_table
 from mbus_framework.errors import ConfigError, DataError
 

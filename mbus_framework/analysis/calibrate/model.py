@@ -3,7 +3,7 @@
 Per property p and MBUS variant (e.g. before and after transducer compensation), the MBUS
 value is regressed on the conventional one, ``p = intercept + slope * conv_p`` (Table 6.1:
 slope, intercept, r; here also their standard errors, t-tests and confidence intervals, see
-:mod:`mbus_framework.analysis.regression`). The conventional values are the ``conv_<p>``
+:mod:`mbus_framework.analysis.calibrate.regression`). The conventional values are the ``conv_<p>``
 columns (:mod:`mbus_framework.analysis.conventional.sheet`): compression E and eta for the
 normal properties, rheometer E' and eta' for the shear ones, joined by ``sample_id``.
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from mbus_framework.errors import DataError
 from mbus_framework.analysis.conventional.sheet import PREFIX
-from mbus_framework.analysis.regression import LineFit, fit_line
+from mbus_framework.analysis.calibrate.regression import LineFit, fit_line
 from mbus_framework.analysis.rows import failed_mask, usable_rows
 from mbus_framework.analysis.table import PROPERTIES, read_table
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mbus_framework.analysis.classify import LETTERS, METHODS, Classification, set_label
+from mbus_framework.analysis.classify.model import LETTERS, METHODS, Classification, set_label
 from mbus_framework.analysis.outputs import write_json
 from mbus_framework.analysis.rows import describe_exclusions
 

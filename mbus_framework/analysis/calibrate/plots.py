@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mbus_framework.analysis.calibrate import CONVENTIONAL_LABEL, FIGURES, CalibrationAnalysis
+from mbus_framework.analysis.calibrate.model import CONVENTIONAL_LABEL, FIGURES, CalibrationAnalysis
 from mbus_framework.analysis.conventional.sheet import PREFIX
 from mbus_framework.analysis.rows import usable_rows
 

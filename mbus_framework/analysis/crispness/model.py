@@ -27,8 +27,8 @@ import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from mbus_framework.analysis.network import MLP, MinMaxScaling
-from mbus_framework.analysis.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.network import MLP, MinMaxScaling
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 from mbus_framework.analysis.table import require_columns
 from mbus_framework.errors import DataError
 from mbus_framework.pipeline.storage import atomic_write_text, to_jsonable

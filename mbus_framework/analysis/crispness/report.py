@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from mbus_framework.analysis.crispness_model import json_safe
+from mbus_framework.analysis.crispness.model import json_safe
 from mbus_framework.pipeline.storage import atomic_write_text
 
 

@@ -17,10 +17,10 @@ import re
 from pathlib import Path
 
 from mbus_framework.errors import DataError
-from mbus_framework.analysis.calibrate import (CONVENTIONAL_LABEL, calibrate, load_variants, regression_frame,
+from mbus_framework.analysis.calibrate.model import (CONVENTIONAL_LABEL, calibrate, load_variants, regression_frame,
                                                table_6_1, table_6_2)
 from mbus_framework.analysis.outputs import output_dir, write_json
-from mbus_framework.analysis.property_calibration import OUTPUT_PREFIX, PropertyCalibration
+from mbus_framework.analysis.calibrate.property_calibration import OUTPUT_PREFIX, PropertyCalibration
 from mbus_framework.analysis.rows import describe_exclusions, failed_mask
 from mbus_framework.analysis.table import PROPERTIES, read_table
 
@@ -103,7 +103,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "notes": analysis.notes, "calibration_files": {v: str(p) for v, p in saved.items()}})
     figures = {}
     if args.plots:
-        from mbus_framework.analysis.calibrate_plots import plot_all
+        from mbus_framework.analysis.calibrate.plots import plot_all
 
         figures = plot_all(analysis, out)
     _print_report(analysis, t61, t62)

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 
 from mbus_framework.errors import DataError
-from mbus_framework.analysis.classify import classify, feature_sets
-from mbus_framework.analysis.classify_report import render_text, write_reports
+from mbus_framework.analysis.classify.model import classify, feature_sets
+from mbus_framework.analysis.classify.report import render_text, write_reports
 from mbus_framework.analysis.outputs import output_dir
 from mbus_framework.analysis.table import PROPERTIES, read_table
 
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     out = output_dir(args.table, args.out, f"classify_{args.by}")
     paths = write_reports(result, out, str(args.table))
     if args.plots:
-        from mbus_framework.analysis.classify_plots import plot_discriminant_space
+        from mbus_framework.analysis.classify.plots import plot_discriminant_space
 
         paths["figure"] = plot_discriminant_space(result, out / "discriminant_space.png")
     print(f"classification of {args.table} by {args.by} ({len(result.groups)} groups)")

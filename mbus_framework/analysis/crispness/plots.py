@@ -9,7 +9,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from mbus_framework.analysis.agreement import Agreement
+from mbus_framework.analysis.crispness.agreement import Agreement
 from mbus_framework.studies.common import _pyplot, _save_figure as _save  # Agg backend; atomic PNG
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mbus_framework.errors import DataError
-from mbus_framework.analysis.regression import LineFit
+from mbus_framework.analysis.calibrate.regression import LineFit
 from mbus_framework.analysis.rows import failed_mask
 
 FORMAT = "mbus-property-calibration/1"

@@ -23,7 +23,7 @@ import pandas as pd
 from sklearn.base import clone
 from sklearn.model_selection import LeaveOneOut
 
-from mbus_framework.analysis.regressor import LMNetworkRegressor
+from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
 
 #: structures compared by default: one hidden layer of 2..10 neurons, two layers of 3 (Fig. 7.2)
 DEFAULT_STRUCTURES: tuple[tuple[int, ...], ...] = ((2,), (3,), (4,), (5,), (6,), (8,), (10,), (3, 3))

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mbus_framework.analysis.classify import Classification, set_label
+from mbus_framework.analysis.classify.model import Classification, set_label
 
 
 def discriminant_scores(X: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:

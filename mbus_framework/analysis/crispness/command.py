@@ -4,7 +4,7 @@
                            [--compare-inputs k_sigma,k_tau] [--group cultivar] [--seed S] [-o DIR]
     mbus-analyze predict TABLE --model DIR/model.json [-o predictions.csv]
 
-Arguments only; the work is in :mod:`mbus_framework.analysis.crispness_workflow`, imported
+Arguments only; the work is in :mod:`mbus_framework.analysis.crispness.workflow`, imported
 when a subcommand runs (so ``mbus-analyze`` starts without loading scikit-learn).
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser, name: str = "crispness") -> None:
 
 
 def run(args) -> int:
-    from mbus_framework.analysis import crispness_workflow as workflow
+    from mbus_framework.analysis.crispness import workflow
 
     if args._mode == "predict":
         return workflow.run_predict(args)

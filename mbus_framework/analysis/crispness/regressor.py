@@ -10,7 +10,7 @@ fit(X, y):
 2. for each of ``n_members`` networks: a random split of (X, y) into training and
    validation samples (``validation_fraction``, 0.22 as in the dissertation: 35 + 10 of 45),
    ``n_restarts`` random initialisations trained by LM with early stopping on the
-   validation samples (:func:`mbus_framework.analysis.network.train_lm`), the restart with
+   validation samples (:func:`mbus_framework.analysis.crispness.network.train_lm`), the restart with
    the lowest validation MSE kept;
 3. predict averages the members (``n_members=1``: the dissertation's single network).
 
@@ -26,7 +26,7 @@ from typing import Sequence
 import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin
 
-from mbus_framework.analysis.network import MLP, ACTIVATIONS, MinMaxScaling, Training, split_train_validation, train_lm
+from mbus_framework.analysis.crispness.network import MLP, ACTIVATIONS, MinMaxScaling, Training, split_train_validation, train_lm
 
 
 class LMNetworkRegressor(RegressorMixin, BaseEstimator):
@@ -45,7 +45,7 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
     patience : epochs without a new best validation MSE before training stops (MATLAB's
         ``max_fail``, 6).
     max_epochs : upper limit of LM epochs per training run.
-    method : 'lm', 'trf' or 'auto' (see :func:`~mbus_framework.analysis.network.train_lm`).
+    method : 'lm', 'trf' or 'auto' (see :func:`~mbus_framework.analysis.crispness.network.train_lm`).
     random_state : seed (int), ``numpy.random.Generator`` or None.
     """
 
@@ -162,7 +162,7 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
 
     @classmethod
     def from_members(cls, net: MLP, members, x_scaling: MinMaxScaling, y_scaling: MinMaxScaling, **params):
-        """A fitted regressor from saved weights and scalings (see ``crispness_model``)."""
+        """A fitted regressor from saved weights and scalings (see ``crispness.model``)."""
         est = cls(hidden_layer_sizes=net.hidden, activation=net.activation, n_members=len(members), **params)
         est.net_, est.x_scaling_, est.y_scaling_ = net, x_scaling, y_scaling
         est.n_features_in_ = net.n_inputs
