@@ -19,8 +19,13 @@ H = cb diag(f(lam)) bb + D, and by the Daleckii-Krein formula the derivative alo
 
 dA, dB, dC, dD come from complex-step differentiation of the model's ``state_space``. When
 the eigenvectors are ill conditioned (nearly defective models), or the modal terms cancel to
-round-off at a frequency, the response is computed by a direct solve per frequency and the
-Jacobian by central differences.
+round-off at a frequency, response and Jacobian come from a direct solve per frequency with the
+adjoint: x = (sI - A)^-1 B, w^T = C (sI - A)^-1,
+
+    dH = dC x + w^T dA x + w^T dB + dD,
+
+sampled with Phi, Gamma0 for A, B and s = z, their derivatives being the Frechet derivative of
+the Van Loan exponential expm([[A h, B h], [0, 0]]) along [[dA h, dB h], [0, 0]].
 """
 from __future__ import annotations
 
@@ -33,7 +38,7 @@ from mbus_framework.engine.simulation import (
     modal_form,
     state_space_derivatives,
 )
-from mbus_framework.interfaces.model import MediumModel
+from mbus_framework.interfaces.model import MediumModel, StateSpace
 
 #: Relative eigenvalue gap below which a divided difference is replaced by the derivative.
 _CLOSE = 1e-7
@@ -101,12 +106,12 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
     ss = as_float_ss(model.state_space(theta))
     mf = modal_form(ss)
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
-        return _finite_difference(model, theta, f, dt)
+        return _direct_jacobian(model, theta, f, dt)
     val, der = _point_values(mf.lam, f, dt)
     terms = val * (mf.cb * mf.bb)[None, :]
     H = mf.d + terms.sum(axis=1)
     if _cancelling(terms, H).any():
-        return _finite_difference(model, theta, f, dt)
+        return _direct_jacobian(model, theta, f, dt)
     T = mf.scale
     J = np.empty((f.size, theta.size), dtype=complex)
     for p, dss in enumerate(state_space_derivatives(model, theta)):
@@ -130,35 +135,69 @@ def _cancelling(terms: np.ndarray, H: np.ndarray, limit: float = 1e3) -> np.ndar
         return np.abs(terms).sum(axis=1) > limit * np.abs(H)
 
 
-def _direct_response(ss, f: np.ndarray, dt: float | None) -> np.ndarray:
-    """One batched solve per frequency (safe for defective models)."""
+def _solve_points(ss, f: np.ndarray, dt: float | None):
+    """Points s (continuous) or z (sampled) and the matrices (A, B) they are solved against."""
     A, B, C, D = ss
     if dt is None:
-        s = 2j * np.pi * f
-    else:
-        from mbus_framework.engine.simulation import discretize
+        return 2j * np.pi * f, A, B
+    from mbus_framework.engine.simulation import discretize
 
-        sys = discretize(ss, float(dt), "zoh")
-        A, B = sys.Phi, sys.Gamma.reshape(-1, 1)
-        s = np.exp(2j * np.pi * f * float(dt))
+    sys = discretize(ss, float(dt), "zoh")
+    return np.exp(2j * np.pi * f * float(dt)), sys.Phi, sys.Gamma.reshape(-1, 1)
+
+
+def _resolvent(s: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """(F, n, n) stack of s_k I - A."""
+    return s[:, None, None] * np.eye(A.shape[0])[None] - A[None]
+
+
+def _direct_response(ss, f: np.ndarray, dt: float | None) -> np.ndarray:
+    """One batched solve per frequency (safe for defective models), in the balanced basis."""
+    ss, _ = _balanced(ss)
+    s, A, B = _solve_points(ss, f, dt)
+    M = _resolvent(s, A)
+    x = np.linalg.solve(M, np.broadcast_to(B.astype(complex), (s.size, A.shape[0], 1)))[..., 0]
+    return x @ ss.C[0].astype(complex) + ss.D[0, 0]
+
+
+def _balanced(ss, *derivatives):
+    """The system and its derivatives in the diagonally balanced basis T^-1 A T, T^-1 B, C T
+    (the response is unchanged; the exponential of a badly scaled A loses digits)."""
+    from scipy.linalg import matrix_balance
+
+    _, (t, _) = matrix_balance(ss.A, permute=False, separate=True)
+
+    def to(m):
+        A, B, C, D = (np.atleast_2d(np.asarray(x, dtype=float)) for x in m)
+        return StateSpace(A * t[None, :] / t[:, None], B / t[:, None], C * t[None, :], D)
+
+    return to(ss), [to(d) for d in derivatives]
+
+
+def _direct_jacobian(model, theta, f, dt) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (H, dH/dtheta) by a direct solve and its adjoint (module docstring)."""
+    from scipy.linalg import expm_frechet
+
+    ss, derivatives = _balanced(as_float_ss(model.state_space(theta)), *state_space_derivatives(model, theta))
+    s, A, B = _solve_points(ss, f, dt)
     n = A.shape[0]
-    M = s[:, None, None] * np.eye(n)[None] - A[None]
+    M = _resolvent(s, A)
     x = np.linalg.solve(M, np.broadcast_to(B.astype(complex), (s.size, n, 1)))[..., 0]
-    return x @ C[0].astype(complex) + D[0, 0]
-
-
-def _finite_difference(model, theta, f, dt) -> tuple[np.ndarray, np.ndarray]:
-    H = _direct_response(as_float_ss(model.state_space(theta)), f, dt)
+    w = np.linalg.solve(np.transpose(M, (0, 2, 1)), np.broadcast_to(ss.C[0].astype(complex), (s.size, n))[..., None])[
+        ..., 0
+    ]
+    H = x @ ss.C[0].astype(complex) + ss.D[0, 0]
     J = np.empty((f.size, theta.size), dtype=complex)
-    for p in range(theta.size):
-        h = 1e-6 * (abs(theta[p]) or 1.0)
-        up, dn = theta.copy(), theta.copy()
-        up[p] += h
-        dn[p] -= h
-        J[:, p] = (
-            _direct_response(as_float_ss(model.state_space(up)), f, dt)
-            - _direct_response(as_float_ss(model.state_space(dn)), f, dt)
-        ) / (2 * h)
+    for p, (dA, dB, dC, dD) in enumerate(derivatives):
+        if dt is not None:  # derivative of [[Phi, Gamma0], [0, 1]] = expm([[A h, B h], [0, 0]])
+            h = float(dt)
+            aug = np.zeros((n + 1, n + 1))
+            aug[:n, :n], aug[:n, n:] = ss.A * h, ss.B * h
+            daug = np.zeros((n + 1, n + 1))
+            daug[:n, :n], daug[:n, n:] = dA * h, dB * h
+            dE = expm_frechet(aug, daug, compute_expm=False)
+            dA, dB = dE[:n, :n], dE[:n, n:]
+        J[:, p] = x @ dC[0] + np.einsum("fi,ij,fj->f", w, dA, x) + w @ dB[:, 0] + dD[0, 0]
     return H, J
 
 
