@@ -174,6 +174,12 @@ def _main(args: argparse.Namespace) -> int:
             from mbus_framework.campaigns.cli import run_from_cli
 
             return run_from_cli(args)
+        from mbus_framework.substitution.config import is_substitution_file
+
+        if is_substitution_file(args.config):
+            from mbus_framework.substitution.command import run_from_cli as run_substitution
+
+            return run_substitution(args)
         from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
 
