@@ -569,6 +569,14 @@ class ChainModel(MediumModel):
         k_inst = d.law.instantaneous_stiffness([float(v) for v in np.asarray(theta)[sl]])
         return self.element_length * np.sqrt(k_inst / self.element_mass)
 
+    def complex_modulus(self, theta, f) -> np.ndarray:
+        """Longitudinal complex modulus the normal links stand for, M(w) = (L/n)/(pi D^2/4) Z(iw)
+        [Pa] at frequencies ``f`` [Hz] (Z: a normal link's dynamic stiffness [N/m]); the
+        continuum the chain discretises, whose plane wave has k = w sqrt(rho / M)."""
+        (d, sl), *_ = self._slices()
+        s = 2j * np.pi * np.asarray(f, dtype=float)
+        return self.geometry_factor("sigma") * d.law.impedance([float(v) for v in np.asarray(theta)[sl]], s)
+
     def driving_point_output(self, theta) -> np.ndarray:
         """C_v with C_v z = velocity of mass 1 (for passivity checks: power = u C_v z)."""
         return driving_point_velocity_row(self.state_space(np.asarray(theta, dtype=float)))

@@ -165,7 +165,10 @@ def _balanced(ss, *derivatives):
     (the response is unchanged; the exponential of a badly scaled A loses digits)."""
     from scipy.linalg import matrix_balance
 
-    _, (t, _) = matrix_balance(ss.A, permute=False, separate=True)
+    if np.all(np.isfinite(ss.A)):
+        _, (t, _) = matrix_balance(ss.A, permute=False, separate=True)
+    else:  # a trial point outside the model's domain: let the solve return NaN as before
+        t = np.ones(ss.A.shape[0])
 
     def to(m):
         A, B, C, D = (np.atleast_2d(np.asarray(x, dtype=float)) for x in m)

@@ -50,6 +50,10 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
         if name in tprops and tprops[name]:
             row += f"{tprops[name]:>14.5g}{100 * (value / tprops[name] - 1):>9.3f}%"
         lines.append(row)
+    if result.get("dispersion"):
+        from mbus_framework.pipeline.dispersion import summary_line
+
+        lines.append(summary_line(result["dispersion"]))
     fit, sol, strat = result["fit"], result["solver"], result.get("strategy", {})
     lines.append("")
     lines.append(f"  fit: mse {fit['mse']:.4g}, nrmse {fit['nrmse']:.4g} over {fit['n_samples']} samples")

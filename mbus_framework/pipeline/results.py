@@ -12,6 +12,7 @@ from mbus_framework.estimation.nuisance import DELAY, GAIN
 from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
+from mbus_framework.pipeline.dispersion import dispersion_section
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -78,6 +79,7 @@ def build_result(
                        **(waveform.info if waveform is not None else {})},
         "files": {"measurement": "measurement.csv", "measurement_meta": "measurement.json"},
     }
+    dispersion_cov = (None, None)  # (covariance, free mask) of the model parameters, when known
     if fit.jacobian is not None and fit.free is not None and fit.free.any():
         names = [n for n, f in zip(fit.names, fit.free) if f]
         unc = from_jacobian(
@@ -96,6 +98,7 @@ def build_result(
         pnames, pvalues, pcov = property_covariance(model.to_properties, theta[:n_model], model_free, cov_model)
         pse = np.sqrt(np.clip(np.diag(pcov), 0, None))
         qfac = float(stats.t.ppf(0.975, unc.dof))  # the same Student-t quantile as the parameters' CIs
+        dispersion_cov = (cov_model, model_free)
         result["uncertainty"] = {
             "method": (
                 "linearised: s^2 (J^T J)^-1, s^2 = 2 cost / (N - p)"
@@ -111,6 +114,10 @@ def build_result(
             "property_standard_errors": dict(zip(pnames, pse)),
             "property_ci95": {n: [v - qfac * s, v + qfac * s] for n, v, s in zip(pnames, pvalues, pse)},
         }
+    cov, free_model = dispersion_cov
+    section = dispersion_section(model, theta[:n_model], problem.u, problem.dt, free_model, cov)
+    if section is not None:
+        result["dispersion"] = section
     if m.truth:
         truth = {k: float(v) for k, v in m.truth.items()}
         tprops = model.to_properties(np.array([truth[n] for n in model.parameter_names]))
