@@ -126,7 +126,7 @@ def _glibc_malloc_defaults() -> Iterator[None]:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
+def sigint_ignored() -> Iterator[None]:
     """Ignore SIGINT for the block; the previous handler is restored after."""
     if threading.current_thread() is not threading.main_thread():
         yield

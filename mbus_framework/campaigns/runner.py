@@ -22,7 +22,7 @@ from typing import Any
 
 from mbus_framework import __version__
 from mbus_framework.campaigns.attempt import CampaignLock
-from mbus_framework.campaigns.executor import _sigint_ignored, dask_client, run_all
+from mbus_framework.campaigns.executor import dask_client, run_all, sigint_ignored
 from mbus_framework.campaigns.html_report import write_campaign_report
 from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
 from mbus_framework.campaigns.problems import Problems
@@ -167,7 +167,7 @@ def _run(campaign: Campaign, out: Path, tasks: list[SampleTask], workers, schedu
         _finish(result, rows, cluster, t0)
     except KeyboardInterrupt:  # Ctrl-C while writing the outputs: write them once more, undisturbed
         result.interrupted = True
-        with _sigint_ignored():
+        with sigint_ignored():
             _collect_finished(result, rows, todo)
             _finish(result, rows, cluster, t0)
     if result.interrupted:
