@@ -70,6 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--workers", type=int, metavar="N", help="campaigns and studies: Dask LocalCluster worker processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="campaigns and studies: run on the Dask cluster at this address (tcp://host:8786)")
+    p.add_argument("--timeout", type=float, metavar="S", help="campaigns: seconds to wait for the scheduler and its first worker (default 15)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the run in OUTDIR (and an existing calibration.output file)")
     p.add_argument("--no-plots", action="store_true", help="do not draw figures (PNGs; report.html without plots)")

@@ -262,12 +262,11 @@ def test_a_campaign_runs_on_a_scheduler_started_elsewhere(tmp_path):
 
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
-    dask = str(Path(sys.executable).parent / "dask")
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
     logs = [open(tmp_path / name, "w") for name in ("scheduler.log", "worker.log")]
-    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+    scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
                                  stdout=logs[0], stderr=subprocess.STDOUT, env=env)
-    worker = subprocess.Popen([dask, "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
                                "--local-directory", str(tmp_path / "dask-worker")],
                               stdout=logs[1], stderr=subprocess.STDOUT, env=env)
     try:

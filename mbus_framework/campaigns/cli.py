@@ -1,4 +1,4 @@
-"""``mbus-run CAMPAIGN.yaml [-o DIR] [--workers N] [--scheduler ADDRESS]``.
+"""``mbus-run CAMPAIGN.yaml [-o DIR] [--workers N] [--scheduler ADDRESS] [--timeout S]``.
 
 Exit status: 0 when every sample was fitted, 1 when some failed (the summary and the table's
 ``error`` column say which), 2 for an invalid campaign (every problem printed, one per line),
@@ -30,6 +30,7 @@ def run_from_cli(args) -> int:
             overrides=args.overrides,
             workers=args.workers,
             scheduler=args.scheduler,
+            timeout=getattr(args, "timeout", None),
             plots=False if args.no_plots else None,
             progress=False if args.quiet else None,
         )

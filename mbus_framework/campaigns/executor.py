@@ -5,8 +5,9 @@ core (the fits are numpy/scipy code that holds the GIL; threads would not run in
 one BLAS thread each, glibc's own malloc tuning (see :func:`_glibc_malloc_defaults`);
 with a scheduler address the fits run on that existing cluster, which is left as it was (only
 our client disconnects). Each fit is one Dask task; a worker process imports mbus once and then
-runs any number of fits. Workers of an existing cluster need mbus installed and must see the
-data files and the output folder at the same paths (a shared file system).
+runs any number of fits. Workers of an existing cluster need mbus installed (checked before the
+first task: :mod:`~mbus_framework.campaigns.cluster`, which also tunes every worker's malloc) and
+must see the data files and the output folder at the same paths (a shared file system).
 """
 from __future__ import annotations
 
@@ -15,42 +16,64 @@ import os
 import signal
 import threading
 import uuid
+import warnings
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, TypeVar
 
-from mbus_framework.errors import MbusError
+from mbus_framework.campaigns.cluster import ClusterError, check_workers, insecure_warning, probe, register
+
+PRELOAD = "mbus_framework.campaigns.cluster"  # its dask_setup runs first in each LocalCluster worker
+
+__all__ = ["ClusterError", "CONNECT_TIMEOUT_S", "dask_client", "run_all"]
 
 T = TypeVar("T")
+
+
+class SecurityWarning(UserWarning):
+    """The cluster is reachable without authentication or encryption."""
 
 #: Environment of LocalCluster worker processes: one BLAS thread per process (the engine's
 #: matrices are small; threaded BLAS only competes with the other workers), no GUI backend, and
 #: no statistical profiler (it samples the task thread every 10 ms; about 7 % of a fit's CPU).
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MPLBACKEND": "Agg",
               "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
-CONNECT_TIMEOUT_S = 10
-
-
-class ClusterError(MbusError):
-    """The Dask cluster cannot be started or reached; the message names the address."""
+#: Seconds to wait for a scheduler to answer and for its first worker (``--timeout``).
+CONNECT_TIMEOUT_S = 15.0
 
 
 @contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None, client=None) -> Iterator[Any]:
+def dask_client(workers: int | None = None, scheduler: str | None = None, client=None,
+                timeout: float | None = None) -> Iterator[Any]:
     """A ``distributed.Client``: ``client`` as given (not closed here), one connected to
     ``scheduler``, or one on a new LocalCluster of ``workers`` processes (default: one per core),
-    closed with its cluster on exit."""
+    closed with its cluster on exit. Workers are checked and set up (:mod:`.cluster`); with a
+    scheduler, each step waits at most ``timeout`` seconds (default :data:`CONNECT_TIMEOUT_S`)
+    and fails with a one-line :class:`ClusterError`."""
     from distributed import Client, LocalCluster
 
+    timeout = CONNECT_TIMEOUT_S if timeout is None else float(timeout)
     if client is not None:
+        register(client, "the given client")
         yield client
         return
     if scheduler:
+        warning = insecure_warning(scheduler)
+        if warning:
+            warnings.warn(warning, SecurityWarning, stacklevel=3)
+        probe(scheduler, timeout)
         try:
-            connected = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+            connected = Client(scheduler, timeout=timeout, set_as_default=False)
+        except TypeError as exc:
+            if "ssl_context" not in str(exc):
+                raise
+            raise ClusterError(f"cannot connect to the Dask scheduler at {scheduler}: a tls:// address needs Dask's TLS "
+                               f"settings (distributed.comm.tls.ca-file, .client.cert, .client.key; docs/campaigns.md)"
+                               ) from None
         except (OSError, TimeoutError, ValueError) as exc:
             first = (str(exc).splitlines() or [type(exc).__name__])[0]
             raise ClusterError(f"cannot connect to the Dask scheduler at {scheduler}: {first}") from None
         try:
+            check_workers(connected, scheduler, timeout)
             yield connected
         finally:
             connected.close()
@@ -58,27 +81,31 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
     if workers is not None and workers < 1:
         raise ClusterError(f"--workers must be at least 1 (got {workers})")
     n = workers or os.cpu_count() or 1
+    cluster = None
     try:
-        with _sigint_ignored(), _glibc_malloc_defaults():
-            cluster = LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=":0",
-                silence_logs=logging.ERROR,
-                env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
-            )
-    except (OSError, TimeoutError, RuntimeError) as exc:
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
-        raise ClusterError(f"cannot start a Dask LocalCluster of {n} worker processes: {first}") from None
-    try:
+        try:
+            with _glibc_malloc_defaults():
+                cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=":0",
+                    silence_logs=logging.ERROR,
+                    env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
+                    preload=[PRELOAD],  # worker processes ignore the terminal's Ctrl-C: the client stops them
+                )
+        except (OSError, TimeoutError, RuntimeError) as exc:
+            first = (str(exc).splitlines() or [type(exc).__name__])[0]
+            raise ClusterError(f"cannot start a Dask LocalCluster of {n} worker processes: {first}") from None
         local = Client(cluster, set_as_default=False)
         try:
+            register(local, "the LocalCluster")
             yield local
         finally:
             local.close()
     finally:
-        cluster.close()
+        if cluster is not None:
+            cluster.close()
 
 
 @contextmanager
@@ -99,9 +126,8 @@ def _glibc_malloc_defaults() -> Iterator[None]:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT while worker processes are started (a child keeps an ignored SIGINT
-    ignored, and Python then installs no KeyboardInterrupt handler in it); restored after."""
+def sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT for the block; the previous handler is restored after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -113,16 +139,17 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 def run_all(client, fn: Callable[[T], Any], items: Iterable[T], on_done: Callable[[T, Any], None],
-            name: Callable[[T], str] = str) -> None:
+            name: Callable[[T], str] = str, group: str = "mbus") -> None:
     """Submit ``fn(item)`` for every item as one Dask task each and call ``on_done(item, value)``
     as tasks finish (``value`` is the exception when the task itself failed, e.g. a worker died).
-    On Ctrl-C (or any exception) every unfinished task is cancelled before re-raising."""
+    On Ctrl-C (or any exception) every unfinished task is cancelled before re-raising. Task keys
+    are ``(group, "<name>-<random>")``: the dashboard groups every task under ``group``."""
     from distributed import as_completed
 
     futures = {}
     try:
         for item in items:
-            key = f"mbus-{name(item)}-{uuid.uuid4().hex[:8]}"
+            key = (group, f"{name(item)}-{uuid.uuid4().hex[:8]}")
             futures[client.submit(fn, item, key=key, pure=False)] = item
         for future in as_completed(list(futures), loop=client.loop):
             item = futures.pop(future)

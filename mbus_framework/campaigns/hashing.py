@@ -1,9 +1,10 @@
 """Content keys for resuming: a fit is redone only when what it fits has changed.
 
-key = SHA-256 over the canonical JSON of the resolved run config(s) (without the ``output``
-section, which does not change a fit), the replicate numbers and how replicates are combined,
-followed by the bytes of every data file the file backend reads (a run folder: every file in
-it, by relative path). The package version is not part of the key.
+key = SHA-256 over the mbus version, the canonical JSON of the resolved run config(s) (without
+the ``output`` section, which does not change a fit), the replicate numbers and how replicates
+are combined, followed by the SHA-256 of every input file the runs read (:func:`input_files`:
+the record, a response channel, a waveform, a calibration; a run folder: every file in it, by
+relative path). Upgrading mbus therefore refits.
 """
 from __future__ import annotations
 
@@ -12,43 +13,48 @@ import json
 from pathlib import Path
 from typing import Any, Iterable
 
+from mbus_framework import __version__
+from mbus_framework.campaigns.paths import path_values
+
 _CHUNK = 1 << 20
 
 
-def content_key(configs: Iterable[dict[str, Any]], replicate_numbers: Iterable[int], mode: str, source: str) -> str:
-    """Hex SHA-256 of the configs and the data files they read (see the module docstring)."""
-    configs = list(configs)
+def content_key(configs: Iterable[dict[str, Any]], replicate_numbers: Iterable[int], mode: str,
+                inputs: Iterable[tuple[str, str]]) -> str:
+    """Hex SHA-256 of the mbus version, the configs and the ``(path, sha256)`` of their input files."""
     h = hashlib.sha256()
     canonical = {
+        "mbus": __version__,
         "configs": [{k: v for k, v in c.items() if k != "output"} for c in configs],
         "replicates": [mode, list(replicate_numbers)],
     }
     h.update(json.dumps(canonical, sort_keys=True, separators=(",", ":"), default=str).encode())
-    for path in data_files(configs, source):
-        h.update(b"\0file\0" + str(path.name).encode())
-        _update_with_path(h, path)
+    for path, digest in inputs:
+        h.update(b"\0file\0" + Path(path).name.encode() + b"\0" + digest.encode())
     return h.hexdigest()
 
 
-def data_files(configs: Iterable[dict[str, Any]], source: str) -> list[Path]:
-    """Files read by a ``file`` backend in ``configs``, resolved as the backend resolves them
-    (as given, else relative to the folder of ``source``)."""
+def input_files(configs: Iterable[dict[str, Any]]) -> list[Path]:
+    """Absolute paths of the files (or run folders) the runs of ``configs`` read, without repeats
+    (the campaign made every path option absolute: :mod:`~mbus_framework.campaigns.paths`)."""
     out: list[Path] = []
     for config in configs:
-        backend = config.get("backend") or {}
-        if backend.get("name") != "file":
-            continue
-        options = backend.get("options") or {}
-        for key in ("path", "response_path"):
-            if options.get(key):
-                p = Path(options[key])
-                if not p.is_absolute() and not p.exists():
-                    p = Path(source).parent / p
+        for _, value in path_values(config):
+            p = Path(value)
+            if p not in out:
                 out.append(p)
     return out
 
 
-def _update_with_path(h, path: Path) -> None:
+def input_digests(configs: Iterable[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
+    """``(absolute path, SHA-256 of its content)`` of every input file (``"missing"`` when absent)."""
+    return tuple((str(p), digest(p)) for p in input_files(configs))
+
+
+def digest(path: str | Path) -> str:
+    """Hex SHA-256 of a file, of a folder (every file in it, by relative path), or ``"missing"``."""
+    path = Path(path)
+    h = hashlib.sha256()
     if path.is_dir():
         for f in sorted(p for p in path.rglob("*") if p.is_file()):
             h.update(b"\0member\0" + str(f.relative_to(path)).encode())
@@ -56,7 +62,8 @@ def _update_with_path(h, path: Path) -> None:
     elif path.is_file():
         _update_with_file(h, path)
     else:
-        h.update(b"\0missing\0")
+        return "missing"
+    return h.hexdigest()
 
 
 def _update_with_file(h, path: Path) -> None:

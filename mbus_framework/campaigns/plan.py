@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mbus_framework.campaigns.hashing import content_key
+from mbus_framework.campaigns.hashing import content_key, input_digests
+from mbus_framework.campaigns.paths import resolve_paths
 from mbus_framework.campaigns.problems import Problems
 from mbus_framework.campaigns.sheet import DATA, SheetRow
 from mbus_framework.campaigns.spec import Campaign
@@ -25,7 +26,10 @@ class SampleTask:
     """One fit of a campaign (what a Dask worker receives).
 
     ``configs`` holds one resolved run config, or one per replicate when the replicate records
-    are averaged before a single fit. ``key`` is the content hash used to resume.
+    are averaged before a single fit. ``key`` is the content hash used to resume; ``inputs`` the
+    ``(absolute path, SHA-256)`` of every file the fit reads, as the client saw them; ``attempt``
+    the token of the campaign run that sent the task (a result is committed only while it is
+    the campaign folder's current one).
     """
 
     label: str
@@ -44,6 +48,8 @@ class SampleTask:
     parameter_names: tuple[str, ...] = ()
     property_names: tuple[str, ...] = ()
     sample: dict[str, float] = field(default_factory=dict)
+    inputs: tuple[tuple[str, str], ...] = ()
+    attempt: str = ""
 
 
 def run_label(sample_id: str, replicate: int | None = None) -> str:
@@ -59,8 +65,9 @@ def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = 
     problems = problems if problems is not None else Problems()
     resolved: dict[int, tuple[dict, Any]] = {}
     unattributed: dict[str, list[str]] = {}
+    base = resolve_paths(copy.deepcopy(campaign.base), campaign.base_source.parent)
     for i, row in enumerate(campaign.rows):
-        got = _resolve(campaign, row, problems, unattributed)
+        got = _resolve(campaign, base, row, problems, unattributed)
         if got is not None:
             resolved[i] = got
     for message, where in unattributed.items():
@@ -90,9 +97,10 @@ def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = 
     return tasks
 
 
-def _resolve(campaign: Campaign, row: SheetRow, problems: Problems, unattributed: dict[str, list[str]]):
-    """The validated run config of one row (mapping and RunConfig), or None after adding a problem."""
-    data = copy.deepcopy(campaign.base)
+def _resolve(campaign: Campaign, base: dict, row: SheetRow, problems: Problems, unattributed: dict[str, list[str]]):
+    """The validated run config of one row (mapping and RunConfig), or None after adding a problem;
+    ``base`` is the campaign's base config with its paths made absolute, and so are the row's."""
+    data = copy.deepcopy(base)
     if row.data is not None:
         backend = data.get("backend") if isinstance(data.get("backend"), dict) else {}
         if backend.get("name") == "file":
@@ -103,6 +111,7 @@ def _resolve(campaign: Campaign, row: SheetRow, problems: Problems, unattributed
     try:
         for key, text in row.overrides.items():
             data = apply_overrides(data, [f"{key}={text}"], where=row.at(key))
+        data = resolve_paths(data, row.folder, unchanged_from=base)
         config = validate_structure(data, row.where)
         c = build_components(config, row.where)
         if config.model.initial:
@@ -175,6 +184,7 @@ def _task(campaign: Campaign, rows: list[SheetRow], resolved: list[tuple[dict, A
     numbers = tuple(r.replicate for r in rows)
     source = str(campaign.base_source.parent / f"{campaign.path.name}[{label}]")
     model = components.model
+    inputs = input_digests(configs)
     return SampleTask(
         label=label,
         sample_id=first.sample_id,
@@ -186,7 +196,8 @@ def _task(campaign: Campaign, rows: list[SheetRow], resolved: list[tuple[dict, A
         source=source,
         run_dir=str(runs / label),
         plots=config["output"]["plots"] if plots is None else bool(plots),
-        key=content_key(configs, numbers, campaign.spec.replicates, source),
+        key=content_key(configs, numbers, campaign.spec.replicates, inputs),
+        inputs=inputs,
         groups=dict(first.groups),
         covariates=dict(first.covariates),
         parameter_names=tuple(model.parameter_names),

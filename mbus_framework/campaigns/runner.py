@@ -16,12 +16,13 @@ from __future__ import annotations
 import datetime as _dt
 import importlib.util
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from mbus_framework import __version__
-from mbus_framework.campaigns.executor import dask_client, run_all
+from mbus_framework.campaigns.attempt import CampaignLock
+from mbus_framework.campaigns.executor import dask_client, run_all, sigint_ignored
 from mbus_framework.campaigns.html_report import write_campaign_report
 from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
 from mbus_framework.campaigns.problems import Problems
@@ -89,22 +90,34 @@ def run_campaign(
     client: Any = None,
     plots: bool | None = None,
     progress: bool | None = None,
+    timeout: float | None = None,
 ) -> CampaignResult:
     """Run every sample of the campaign file ``path`` (see the module docstring).
 
     ``overrides`` (``--set`` style) apply to the base config; ``workers``/``scheduler`` beat the
     campaign's keys; ``client`` is an existing ``distributed.Client`` to use as it is; ``plots``
     (None: the config's ``output.plots``) is for each sample's run folder; ``progress``
-    (None: on a terminal) shows the bar. Every problem of the campaign file, the sheet and the
+    (None: on a terminal) shows the bar; ``timeout`` (None: the campaign's ``timeout``, else
+    15 s) bounds the waits for a scheduler and its first worker. Every problem of the campaign file, the sheet and the
     samples' run configs is raised (:class:`CampaignError`) before anything is fitted. Ctrl-C
     cancels the unfinished fits, writes what finished and raises :class:`CampaignInterrupted`.
+    The campaign folder is locked for the run (a second run on it is refused); fits left running
+    by an earlier, interrupted run cannot overwrite this run's (:mod:`.attempt`).
     """
     t0 = time.perf_counter()
     problems = Problems()
     campaign = load_campaign(path, overrides, problems)
     out = Path(out_dir) if out_dir is not None else default_out_dir(campaign)
     tasks = plan_campaign(campaign, out, plots, problems)
-    out.mkdir(parents=True, exist_ok=True)
+    with CampaignLock(out) as lock:
+        tasks = [replace(t, attempt=lock.token) for t in tasks]
+        return _run(campaign, out, tasks, workers, scheduler, client, progress, t0,
+                    campaign.spec.timeout if timeout is None else timeout)
+
+
+def _run(campaign: Campaign, out: Path, tasks: list[SampleTask], workers, scheduler, client, progress, t0: float,
+         timeout: float | None) -> CampaignResult:
+    """Fit what is not finished yet, then write the outputs; campaign.json never stays "running"."""
     rows: dict[str, dict] = {}
     result = CampaignResult(campaign, out, tasks, None)
     todo = []
@@ -122,6 +135,9 @@ def run_campaign(
         if isinstance(value, BaseException):
             rows[task.label] = failed_row(task, f"the Dask task failed: {type(value).__name__}: {value}",
                                           str(Path("runs") / task.label))
+        elif value.get("stale"):
+            rows[task.label] = failed_row(task, "superseded: another run of this campaign folder took over",
+                                          str(Path("runs") / task.label))
         else:
             rows[task.label] = value["row"]
         result.fitted.append(task.label)
@@ -131,30 +147,46 @@ def run_campaign(
     try:
         with CampaignProgress(len(todo), f"{campaign.name}{reused}", progress) as bar:
             if todo:
-                with dask_client(cluster["workers"], cluster["scheduler"], client) as dask:
-                    cluster["workers"] = len(dask.scheduler_info().get("workers", {})) or cluster["workers"]
+                with dask_client(cluster["workers"], cluster["scheduler"], client, timeout) as dask:
+                    cluster["workers"] = len(dask.scheduler_info(n_workers=-1).get("workers", {})) or cluster["workers"]
                     if importlib.util.find_spec("bokeh") is not None:  # the dashboard needs bokeh
                         cluster["dashboard"] = getattr(dask, "dashboard_link", None)
                     t_fits = time.perf_counter()
                     try:
-                        run_all(dask, run_task, todo, done, name=lambda t: t.label)
+                        run_all(dask, run_task, todo, done, name=lambda t: t.label, group=f"mbus-{campaign.name}")
                     finally:
                         result.fit_phase_s = time.perf_counter() - t_fits
     except KeyboardInterrupt:
         result.interrupted = True
-        for task in todo:  # fits that finished on a worker while the client was stopping
-            stored = read_marker(task.run_dir, task.key) if task.label not in rows else None
-            if stored is not None:
-                rows[task.label] = stored
-                result.fitted.append(task.label)
-    _finish(result, rows, cluster, t0)
+    except BaseException as exc:
+        _write_meta(result, cluster, "failed", t0, error=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        raise
+    if result.interrupted:
+        _collect_finished(result, rows, todo)
+    try:
+        _finish(result, rows, cluster, t0)
+    except KeyboardInterrupt:  # Ctrl-C while writing the outputs: write them once more, undisturbed
+        result.interrupted = True
+        with sigint_ignored():
+            _collect_finished(result, rows, todo)
+            _finish(result, rows, cluster, t0)
     if result.interrupted:
         raise CampaignInterrupted(result)
     return result
 
 
+def _collect_finished(result: CampaignResult, rows: dict[str, dict], todo: list[SampleTask]) -> None:
+    """Rows of fits that finished on a worker while the client was stopping."""
+    for task in todo:
+        stored = read_marker(task.run_dir, task.key) if task.label not in rows else None
+        if stored is not None:
+            rows[task.label] = stored
+            result.fitted.append(task.label)
+
+
 def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: float) -> None:
-    """Write the table(s), the group summary and campaign.json from the rows that finished."""
+    """Write the table(s), the group summary and campaign.json from the rows that finished
+    (an empty table, and no summary, when none did)."""
     campaign, out = result.campaign, result.out_dir
     spec = campaign.spec
     result.table = build_table([rows[t.label] for t in result.tasks if t.label in rows], spec.groups, spec.covariates)
@@ -164,21 +196,23 @@ def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: fl
         quantities += [c for c in result.table.columns if c.startswith("true_")]
         samples = aggregate_replicates(result.table, ["sample_id", *spec.groups], quantities)
         result.files.update(write_table(samples, out, "samples"))
-    result.report = group_report(result.table, spec.groups, out, campaign.title)
-    result.files.update(result.report.files)
-    result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
+    if len(result.table):
+        result.report = group_report(result.table, spec.groups, out, campaign.title)
+        result.files.update(result.report.files)
+        result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
     result.wall_time_s = time.perf_counter() - t0
     result.files["report_html"] = write_campaign_report(result)
     result.files["campaign_json"] = _write_meta(result, cluster, "interrupted" if result.interrupted else "finished", t0)
 
 
-def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float) -> Path:
+def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float, error: str | None = None) -> Path:
     c = result.campaign
     table = result.table
     return atomic_write_json(result.out_dir / CAMPAIGN_JSON, {
         "campaign": str(c.path),
         "title": c.title,
         "status": status,
+        **({"error": error} if error else {}),
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
         "mbus_version": __version__,
         "base": str(c.base_source),

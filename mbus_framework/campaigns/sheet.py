@@ -36,6 +36,8 @@ class SheetRow:
     overrides: dict[str, str] = field(default_factory=dict)
     groups: dict[str, Any] = field(default_factory=dict)
     covariates: dict[str, Any] = field(default_factory=dict)
+    folder: Path = Path(".")
+    """The sheet's folder: relative paths in its cells are relative to it."""
 
     def at(self, column: str) -> str:
         """``'<sheet>: row N, column <column>'`` for error messages."""
@@ -216,4 +218,5 @@ def _row(where, record, known, base: Path, groups, covariates, problems: Problem
         overrides,
         labels,
         {name: record.get(name, "") for name in covariates},
+        base.resolve(),
     )

@@ -33,6 +33,7 @@ class CampaignSpec(BaseModel):
     )
     scheduler: str | None = Field(None, description="Dask scheduler address (tcp://host:8786); null = LocalCluster")
     workers: int | None = Field(None, ge=1, description="LocalCluster worker processes; null = one per core")
+    timeout: float | None = Field(None, gt=0, description="seconds to wait for the scheduler and its first worker; null = 15")
 
     @model_validator(mode="after")
     def _one_config(self):

@@ -21,10 +21,12 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from mbus_framework.campaigns.attempt import is_current
+from mbus_framework.campaigns.hashing import digest
 from mbus_framework.campaigns.plan import SampleTask
 from mbus_framework.campaigns.replicates import average_records
 from mbus_framework.campaigns.rows import failed_row, result_row
-from mbus_framework.errors import MbusError
+from mbus_framework.errors import DataError, MbusError
 from mbus_framework.pipeline.components import build_components
 from mbus_framework.pipeline.config import validate_structure
 from mbus_framework.pipeline.run import acquire, designed_waveform, execute
@@ -36,31 +38,90 @@ AVERAGED_FILE = "averaged.csv"
 
 
 def run_task(task: SampleTask) -> dict[str, Any]:
-    """Fit one sample; returns ``{"row": ..., "cacheable": bool, "seconds": float}``."""
+    """Fit one sample; returns ``{"row": ..., "cacheable": bool, "seconds": float, "stale": bool}``.
+
+    The fit is written into a work folder (``runs/.<label>.<attempt>``) and committed by renaming
+    it to ``runs/<label>`` only while ``task.attempt`` is still the campaign's current attempt
+    (:mod:`~mbus_framework.campaigns.attempt`); a stale fit is discarded (``stale`` True). Every
+    input file is checked against the hash the client planned with before it is read, and the
+    absolute path and SHA-256 of each are recorded in the run's ``measurement.json``.
+    """
     os.environ.setdefault("MPLBACKEND", "Agg")
     t0 = time.perf_counter()
     run_dir = Path(task.run_dir)
+    out = run_dir.parent.parent
     rel = str(Path("runs") / run_dir.name)
-    for stale in (run_dir, _staging(run_dir)):  # an unfinished or outdated run of this sample: start clean
+    if not is_current(out, task.attempt):
+        return {"row": None, "cacheable": False, "seconds": 0.0, "stale": True}
+    work = run_dir.parent / f".{run_dir.name}.{task.attempt[:12] or 'work'}"
+    for stale in (work, _staging(work)):  # an unfinished fit of this attempt: start clean
         if stale.exists():
             shutil.rmtree(stale)
-    run_dir.mkdir(parents=True)
+    work.mkdir(parents=True)
     cacheable = True
     try:
-        result, truth = _fit(task, run_dir)
+        problem = _check_inputs(task)
+        if problem:
+            cacheable = False  # the worker's view of the files, not the data: retried on the next run
+            raise DataError(problem)
+        result, truth = _fit(task, work, run_dir)
         row = result_row(task, result, rel, truth)
     except MbusError as exc:
-        row = failed_row(task, str(exc), rel, _recorded_truth(run_dir))
+        row = failed_row(task, str(exc), rel, _recorded_truth(work))
     except Exception as exc:  # noqa: BLE001 - isolate the failure in its row, keep the traceback
-        atomic_write_text(run_dir / "error.txt", traceback.format_exc())
+        atomic_write_text(work / "error.txt", traceback.format_exc())
         row = failed_row(task, f"internal error ({type(exc).__name__}: {exc}); traceback in {rel}/error.txt",
-                         rel, _recorded_truth(run_dir))
+                         rel, _recorded_truth(work))
         cacheable = False
     seconds = time.perf_counter() - t0
+    _record_inputs(work, task)
     if cacheable:
         worker = {"host": socket.gethostname(), "pid": os.getpid()}
-        atomic_write_json(run_dir / MARKER, {"key": task.key, "row": row, "seconds": seconds, "worker": worker})
-    return {"row": row, "cacheable": cacheable, "seconds": seconds}
+        atomic_write_json(work / MARKER, {"key": task.key, "row": row, "seconds": seconds, "worker": worker,
+                                          "attempt": task.attempt})
+    if not _commit(work, run_dir, out, task.attempt):
+        return {"row": None, "cacheable": False, "seconds": seconds, "stale": True}
+    return {"row": row, "cacheable": cacheable, "seconds": seconds, "stale": False}
+
+
+def _check_inputs(task: SampleTask) -> str | None:
+    """A one-line problem when an input file is missing here or differs from the client's."""
+    host = socket.gethostname()
+    for path, expected in task.inputs:
+        found = digest(path)
+        if found == expected:
+            continue
+        if found == "missing":
+            return (f"{path}: not found on the worker host {host}; workers must see the campaign's files at the "
+                    f"same paths (a shared file system)")
+        return f"{path}: differs on the worker host {host} from the file the campaign was planned with"
+    return None
+
+
+def _record_inputs(work: Path, task: SampleTask) -> None:
+    """Add ``inputs: [{path, sha256}]`` (absolute paths) to the run's measurement.json."""
+    meta_file = work / "measurement.json"
+    if not task.inputs or not meta_file.is_file():
+        return
+    try:
+        saved = json.loads(meta_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    saved["inputs"] = [{"path": p, "sha256": h} for p, h in task.inputs]
+    atomic_write_json(meta_file, saved)
+
+
+def _commit(work: Path, run_dir: Path, out: Path, attempt: str) -> bool:
+    """Replace ``run_dir`` by ``work`` if ``attempt`` is still current; else discard ``work``."""
+    if not is_current(out, attempt):
+        shutil.rmtree(work, ignore_errors=True)
+        return False
+    old = run_dir.parent / f".{run_dir.name}.old-{os.getpid()}"
+    if run_dir.exists():
+        os.rename(run_dir, old)
+    os.rename(work, run_dir)
+    shutil.rmtree(old, ignore_errors=True)
+    return True
 
 
 def read_marker(run_dir: str | Path, key: str) -> dict[str, Any] | None:
@@ -73,23 +134,24 @@ def read_marker(run_dir: str | Path, key: str) -> dict[str, Any] | None:
     return stored.get("row") if isinstance(stored, dict) and stored.get("key") == key else None
 
 
-def _fit(task: SampleTask, run_dir: Path) -> tuple[dict[str, Any], dict[str, float] | None]:
+def _fit(task: SampleTask, work: Path, run_dir: Path) -> tuple[dict[str, Any], dict[str, float] | None]:
+    """Fit into ``work``; ``run_dir`` is where the folder will be (the averaged record's path)."""
     if len(task.configs) == 1:
-        outcome = execute(task.configs[0], [], run_dir, plots=task.plots, source=task.source)
+        outcome = execute(task.configs[0], [], work, plots=task.plots, source=task.source)
         return outcome.result, None
-    staging = _staging(run_dir)
+    staging = _staging(work)
     try:
         mean = _average(task, staging)
         config = copy.deepcopy(task.configs[0])
         config["backend"] = {"name": "file", "options": {"path": str(run_dir / "replicates" / AVERAGED_FILE)}}
-        outcome = execute(config, [], run_dir, plots=task.plots, source=task.source, measurement=mean)
+        outcome = execute(config, [], work, plots=task.plots, source=task.source, measurement=mean)
     finally:  # the saved replicates belong to the run folder, whatever happened
         if staging.exists():
-            run_dir.mkdir(parents=True, exist_ok=True)
-            staging.rename(run_dir / "replicates")
+            work.mkdir(parents=True, exist_ok=True)
+            staging.rename(work / "replicates")
     result = outcome.result
     result["replicates"] = {"averaged": [f"r{n}" for n in task.replicate_numbers], "file": f"replicates/{AVERAGED_FILE}"}
-    atomic_write_json(run_dir / "result.json", result)
+    atomic_write_json(work / "result.json", result)
     truth = {**(mean.truth or {}), **(mean.meta.get("true_properties") or {})}
     return result, truth
 
