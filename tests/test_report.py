@@ -23,7 +23,7 @@ from mbus_framework.pipeline.figures import confidence_bound, correlation
 
 REPO = Path(__file__).resolve().parents[1]
 RECORDED = REPO / "configs" / "recorded.yaml"
-FIGURE_COUNT = 5  # fit, residual correlation, frequency response, excitation, convergence
+FIGURE_COUNT = 6  # fit, residual correlation, frequency response, excitation, convergence, dispersion
 
 
 class Page(HTMLParser):

@@ -48,6 +48,7 @@ class FitData:
     trace: list[dict[str, Any]] = field(default_factory=list)
     designed: Waveform | None = None
     title: str = ""
+    dispersion: dict[str, Any] | None = None  # result.json's ``dispersion`` section
 
     @property
     def residuals(self) -> np.ndarray:
@@ -59,9 +60,9 @@ class FitData:
 
     @classmethod
     def from_fit(cls, problem: "FitProblem", fit: "FitResult", designed: Waveform | None = None,
-                 title: str = "") -> "FitData":
+                 title: str = "", dispersion: dict[str, Any] | None = None) -> "FitData":
         return cls(problem.t, problem.u, problem.y, problem.y - fit.residuals, list(fit.names),
-                   list(fit.trace), designed, title)
+                   list(fit.trace), designed, title, dispersion)
 
 
 def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
@@ -246,6 +247,29 @@ def convergence_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     return fig
 
 
+def dispersion_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
+    """Phase velocity [m/s] and attenuation [dB/cm] of the fitted material against frequency
+    [MHz], with 95 % bands from the standard errors."""
+    fig = _new(fig, (9.0, 3.6))
+    ax1, ax2 = fig.subplots(1, 2)
+    s = d.dispersion or {}
+    f = np.asarray(s.get("frequency_Hz", []), dtype=float) / 1e6
+    for ax, key, label in ((ax1, "phase_velocity", "phase velocity [m/s]"), (ax2, "attenuation", "attenuation [dB/cm]")):
+        unit = "_m_s" if key == "phase_velocity" else "_dB_per_cm"
+        y = np.asarray(s.get(key + unit, []), dtype=float)
+        ax.plot(f, y, color="C0")
+        se = s.get(key + "_se" + unit)
+        if se is not None:
+            se = np.asarray(se, dtype=float)
+            ax.fill_between(f, y - 1.96 * se, y + 1.96 * se, color="C0", alpha=0.25, lw=0)
+        ax.set_xlabel("frequency [MHz]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle("dispersion of the fitted material (longitudinal plane wave; shaded: 95 % band)")
+    _margins(fig, left=0.1, top=0.86, bottom=0.15, wspace=0.35)
+    return fig
+
+
 #: Figure name -> (builder, file name, caption). The run folder's PNGs and report.html use these.
 FIGURES = {
     "fit": (fit_figure, "fit.png", "Measured and predicted output, and the residual (Fig. 3.9)."),
@@ -258,6 +282,8 @@ FIGURES = {
     "excitation": (excitation_figure, "excitation.png", "Power spectrum of the fitted input (and of the design)."),
     "convergence": (convergence_figure, "convergence.png",
                     "Parameters and cost per iteration of the winning start (Fig. 3.8)."),
+    "dispersion": (dispersion_figure, "dispersion.png",
+                   "Phase velocity and attenuation of the fitted material over the record's band."),
 }
 
 
@@ -267,7 +293,7 @@ def render_all(d: FitData, dpi: int = 100) -> dict[str, bytes]:
 
     out = {}
     for name, (build, _file, _caption) in FIGURES.items():
-        if name == "convergence" and not d.trace:
+        if (name == "convergence" and not d.trace) or (name == "dispersion" and not d.dispersion):
             continue
         out[name] = png_bytes(build(d), dpi)
     return out

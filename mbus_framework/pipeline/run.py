@@ -50,7 +50,8 @@ class RunOutcome:
         """The arrays behind the figures (fitted record, prediction, trace, design)."""
         if self.problem is None:
             raise ValueError("this outcome has no fitting problem")
-        return FitData.from_fit(self.problem, self.fit, self.designed, self.components.config.title or self.components.source)
+        return FitData.from_fit(self.problem, self.fit, self.designed, self.components.config.title or self.components.source,
+                                self.result.get("dispersion"))
 
 
 def new_run_dir(config: RunConfig, source: str) -> Path:
