@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mbus_framework.substitution.fit import LawFit, SubstitutionProblem, checks, fit_law
-from mbus_framework.substitution.laws import law_named
+from mbus_framework.substitution.chains import any_law
 from mbus_framework.substitution.model_free import Dispersion, model_free
 from mbus_framework.substitution.record import SubstitutionRecord
 from mbus_framework.substitution.spectra import Spectra, spectra
@@ -37,5 +37,5 @@ def analyse(record: SubstitutionRecord, laws=("constant_q",), *, reverberations:
     sp = spectra(record, band_dB)
     reference = model_free(sp, record.density, record.thickness, water, record.passes, reverberations)
     problem = SubstitutionProblem(sp, record.density, record.thickness, water, record.passes, reverberations)
-    fits = sorted((fit_law(problem, law_named(name), reference) for name in laws), key=lambda x: x.bic)
+    fits = sorted((fit_law(problem, any_law(name), reference) for name in laws), key=lambda x: x.bic)
     return SubstitutionAnalysis(record, water, sp, reference, fits)

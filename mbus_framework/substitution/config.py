@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mbus_framework.errors import ConfigError
-from mbus_framework.substitution.laws import LAWS
+from mbus_framework.substitution.chains import ALL_LAWS as LAWS
 from mbus_framework.substitution.record import DEFAULT_VARIABLES
 
 KEY = "experiment"

@@ -59,6 +59,8 @@ class SubstitutionProblem:
 
     def predict(self, law: Law, p: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
         w = self.sp.w if w is None else w
+        if callable(getattr(law, "transmission", None)):  # a lumped chain (substitution.chains)
+            return self.sp.R * law.transmission(w, p, self.rho, self.h, self.water) ** self.passes
         M = law.modulus(w, p, self.w0)
         return self.sp.R * substitution_ratio(M, w, self.rho, self.h, self.water, self.passes, self.reverberations)
 
