@@ -13,6 +13,9 @@ import pytest
 
 from mbus_framework.api import fit
 from mbus_framework.estimation.combinations import extreme_combinations
+from mbus_framework.estimation.gate import information_gate
+from mbus_framework.interfaces.sample import Sample
+from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 from tests.test_global_minimum import CHAPTER4, chapter4, record
 
 
@@ -76,3 +79,44 @@ def test_an_imprecise_trade_off_warns_with_what_is_determined():
     se = unc["relative_standard_errors"]
     assert group["best"]["relative_standard_error"] < 0.01 * min(se["k_sigma"], se["k_tau"])
     assert group["worst"]["relative_standard_error"] > max(se["k_sigma"], se["k_tau"])
+
+
+# -- the information gate ----------------------------------------------------------------------
+def _slow_potato(noise=0.05, seed=1):
+    """Table 6.2 potato, E_sigma and E_tau at their minimum, eta_sigma at its maximum, eta_tau
+    at its mean (30 mm, 10 elements), driven by a white +-1 input at 25 MS/s: its response
+    arrives after ~350 samples, beyond the response test's 312 lags, smeared over hundreds."""
+    model = KelvinVoigtChain(Sample(0.03, 0.0254, 1080.0), KelvinVoigtOptions(n_elements=10))
+    theta = np.asarray(model.from_properties(dict(E_sigma=4.84e9, eta_sigma=3.83e4, E_tau=1.30e9, eta_tau=6.21e4)))
+    problem, _ = record(model, theta, 10, 0.04e-6, 25e6, 5000, noise, seed=seed)
+    return problem, theta
+
+
+def test_a_precise_high_snr_fit_stands_for_the_response_test():
+    problem, theta = _slow_potato()
+    r = problem.y - problem.predict(theta)  # the residual of the truth: noise only
+    blind = information_gate(problem.y, r, problem.u)
+    assert blind["response_p_value"] > 1e-3 and not blind["reliable"]  # the model-free test misses it
+    assert blind["signal_to_noise"] > 50
+    shown = information_gate(problem.y, r, problem.u, relative_standard_errors=[0.003, 0.002, 0.003, 0.002])
+    assert shown["reliable"] and shown["response_shown_by_fit"]
+    # imprecise parameters, or a low signal-to-noise, do not stand for it
+    assert not information_gate(problem.y, r, problem.u, relative_standard_errors=[0.003, 0.3, 0.003, 0.002])["reliable"]
+    noise = np.random.default_rng(3).normal(0, np.std(problem.y), problem.y.size)
+    assert not information_gate(noise, noise - 0.01 * noise.mean(), problem.u,
+                                relative_standard_errors=[0.001] * 4)["reliable"]
+
+
+@pytest.mark.slow
+def test_a_slow_potato_fitted_to_the_noise_passes_the_gate():
+    """The issue-28 case: recovered to a fraction of a percent at nrmse 0.05, no warning."""
+    problem, theta = _slow_potato()
+    result = fit(problem.t, problem.u, problem.y, sample=dict(length=0.03, diameter=0.0254, density=1080.0),
+                 model_options={"n_elements": 10}, plots=False)
+    doc = result.document
+    est = np.array([doc["parameters"][n] for n in ("k_sigma", "b_sigma", "k_tau", "b_tau")])
+    rse = np.array([doc["uncertainty"]["relative_standard_errors"][n] for n in ("k_sigma", "b_sigma", "k_tau", "b_tau")])
+    assert np.all(np.abs(est / theta - 1) < 4 * rse) and np.all(rse < 0.01)
+    assert doc["fit"]["information"]["response_p_value"] > 1e-3  # the model-free test alone would fire
+    assert doc["fit"]["reliable"] is True
+    assert result.warnings == [], result.warnings

@@ -133,7 +133,8 @@ def build_result(
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
     measured = measurement_warnings(m)
-    result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance)
+    result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance,
+                                            c.config.identifiability.precise_relative_se)
     result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
     result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
@@ -217,7 +218,7 @@ def correlation_report(result: dict[str, Any], names: list[str], corr: np.ndarra
     (:mod:`mbus_framework.estimation.combinations`).
 
     Correlation alone is never a warning: the group's ``warning`` is set only when one of its
-    members has a relative standard error above ``limits.correlated_relative_se``, and then
+    members has a relative standard error above ``limits.precise_relative_se``, and then
     names what the record does determine."""
     unc = result["uncertainty"]
     rse = unc["relative_standard_errors"]
@@ -233,13 +234,13 @@ def correlation_report(result: dict[str, Any], names: list[str], corr: np.ndarra
         entry: dict[str, Any] = {"parameters": group, "max_correlation": worst, "max_relative_se": largest,
                                  "best": extremes[0].as_dict() if extremes else None,
                                  "worst": extremes[1].as_dict() if extremes else None, "warning": None}
-        if largest > limits.correlated_relative_se:
+        if largest > limits.precise_relative_se:
             shown = f"{100 * largest:.3g} %" if np.isfinite(largest) else "undefined"
             what = (f"; the record determines {extremes[0].expression} to {_pct(extremes[0].relative_se)}"
                     f" and {extremes[1].expression} only to {_pct(extremes[1].relative_se)}") if extremes else ""
             entry["warning"] = (
                 f"{_join(group)} are correlated (|r| up to {worst:.3f} > {limits.max_correlation}) and imprecise "
-                f"(relative standard error up to {shown} > {100 * limits.correlated_relative_se:.3g} %){what}: "
+                f"(relative standard error up to {shown} > {100 * limits.precise_relative_se:.3g} %){what}: "
                 f"report that combination, not their individual values")
         out.append(entry)
     return out
