@@ -102,6 +102,7 @@ EXTRA_KEYS = [
     "solver.options.strategy.coordinate_scan", "solver.options.strategy.bands", "solver.options.strategy.n_starts",
     "nuisance.input_gain.estimate", "nuisance.input_gain.value", "nuisance.delay.estimate", "nuisance.delay.value",
     "nuisance.max_delay", "identifiability.max_correlation", "identifiability.max_relative_se",
+    "identifiability.precise_relative_se", "solver.options.strategy.min_excess",
     "compensator.options", "compensator.options.calibration", "output.plots", "title", "calibration",
     "calibration.lengths", "calibration.band", "calibration.output", "calibration.analysis", "design",
 ]

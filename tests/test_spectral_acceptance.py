@@ -126,3 +126,24 @@ def test_judge_uses_the_noise_of_repeated_periods():
     too_big = rng.normal(0, 0.13, u.size)  # residual 30 % above the period scatter
     v = judge(too_big, u, 4, noise)
     assert not v.accepted and "repeated periods" in v.reason
+
+
+def test_significant_but_small_structure_does_not_reject_a_minimum():
+    """Significance is not size: on a long record a leftover with 1 % of the noise power is
+    significant (p < 1e-3) but removes ~1 % of the residual energy, below min_excess (3 %): the
+    minimum is accepted and the reason says why. With min_excess 0 it is rejected, and a
+    leftover at 15 % of the noise power is rejected either way."""
+    rng = np.random.default_rng(21)
+    u = prbs(13, 4, 60000)
+    shape = lfilter(np.hanning(40), [1.0], u)
+    shape /= shape.std()
+    noise = rng.normal(size=u.size)
+    small = noise + np.sqrt(0.01) * shape
+    t = residual_input_test(small, u, 4)
+    assert t.p_value < 1e-3 and 0.002 < t.excess_fraction < 0.02
+    v = judge(small, u, 4, None)
+    assert v.accepted and "significant but small" in v.reason
+    assert not judge(small, u, 4, None, min_excess=0.0).accepted
+    large = noise + np.sqrt(0.15) * shape
+    assert judge(large, u, 4, None).residual_test.excess_fraction > 0.1
+    assert not judge(large, u, 4, None).accepted

@@ -94,6 +94,9 @@ class StrategyOptions(BaseModel):
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each local-fit stage")
     significance: float = Field(1e-3, gt=0, lt=1, description="p-value below which input-related structure "
                                                               "in the residual rejects a minimum")
+    min_excess: float = Field(0.03, ge=0, lt=1, description="input-related residual structure rejects a minimum "
+                              "only when it is also this large: its excess over the noise, as a fraction of the "
+                              "residual energy (significance is not size)")
     residual_lags: int | None = Field(None, ge=1, description="lags of the residual-input test (default N/16, <= 400)")
     accept_white: bool = Field(True, description="also require white residuals to accept a minimum")
     whiteness_threshold: float = Field(
@@ -291,7 +294,7 @@ class _Search:
             return dataclasses.replace(v, accepted=True, reason="exact fit (cost at round-off level)")
         return judge(r, p.u, int(p.free.sum()), self.noise, significance=o.significance,
                      whiteness_threshold=o.whiteness_threshold if o.accept_white else np.inf,
-                     white_noise=p.noise_filter is None, lags=o.residual_lags)
+                     white_noise=p.noise_filter is None, lags=o.residual_lags, min_excess=o.min_excess)
 
     def anchors(self) -> list[np.ndarray]:
         """The ``fallback_anchors`` lowest-cost minima found, distinct (2 % in every parameter)."""

@@ -14,10 +14,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.estimation.problem import FitProblem, FitResult
 
 
-def gate_warnings(result: dict[str, Any], problem: "FitProblem", fit: "FitResult", min_explained: float) -> list[str]:
+def gate_warnings(result: dict[str, Any], problem: "FitProblem", fit: "FitResult", min_explained: float,
+                  precise: float = 0.05) -> list[str]:
     """Adds ``fit.information`` to ``result``; one warning naming every parameter when the
-    record holds too little response to trust any of them."""
-    gate = information_gate(problem.y, fit.residuals, problem.u, min_explained)
+    record holds too little response to trust any of them (not when the fit itself shows the
+    response: every relative SE <= ``precise`` at a high signal-to-noise)."""
+    rse = (result.get("uncertainty") or {}).get("relative_standard_errors")
+    gate = information_gate(problem.y, fit.residuals, problem.u, min_explained,
+                            relative_standard_errors=None if rse is None else list(rse.values()), precise=precise)
     result["fit"]["information"] = gate
     result["fit"]["reliable"] = gate["reliable"]
     if gate["reliable"]:

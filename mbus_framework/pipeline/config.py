@@ -113,8 +113,13 @@ class NuisanceConfig(_Strict):
 class IdentifiabilityConfig(_Strict):
     """``identifiability``: when the run warns instead of printing confident numbers."""
 
-    max_correlation: float = Field(0.95, gt=0, le=1, description="|correlation| above this is flagged")
-    max_relative_se: float = Field(0.5, gt=0, description="standard error / |estimate| above this is flagged")
+    max_correlation: float = Field(0.95, gt=0, le=1, description="|correlation| above which parameters form a "
+                                   "correlated group (reported; warned only when the group is also imprecise)")
+    precise_relative_se: float = Field(
+        0.05, gt=0, description="standard error / |estimate| below which a parameter is precise: a correlated group "
+        "warns only when a member exceeds it, and a fit whose parameters are all below it at a signal-to-noise of 10 "
+        "or more passes the information gate")
+    max_relative_se: float = Field(0.2, gt=0, description="standard error / |estimate| above this is flagged")
     max_residual_autocorrelation: float = Field(
         0.2, gt=0, description="mean |autocorrelation| of residuals (lags 1-10) above this is flagged as misfit"
     )

@@ -8,6 +8,7 @@ import numpy as np
 from scipy import stats
 
 from mbus_framework import __version__
+from mbus_framework.estimation.combinations import extreme_combinations
 from mbus_framework.estimation.nuisance import DELAY, GAIN
 from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
@@ -139,7 +140,8 @@ def build_result(
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
     measured = measurement_warnings(m)
-    result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance)
+    result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance,
+                                            c.config.identifiability.precise_relative_se)
     result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
     result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
@@ -177,8 +179,8 @@ def cramer_rao(problem: "FitProblem", theta_true: np.ndarray, noise_std: float, 
 
 
 def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -> list[str]:
-    """Plain-language warnings: unconverged solver, unconfirmed minimum, strong correlations,
-    large standard errors."""
+    """Plain-language warnings: unconverged solver, unconfirmed minimum, correlated groups that
+    are also imprecise, large standard errors (rules in docs/estimation.md)."""
     out: list[str] = []
     if not fit.success:
         out.append(f"the solver did not report convergence ({fit.message}); treat the estimates with care")
@@ -205,11 +207,8 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
         )
     names = unc["correlation"]["names"]
     corr = np.asarray(unc["correlation"]["matrix"])
-    for group, worst in correlated_groups(names, corr, limits.max_correlation):
-        out.append(
-            f"{_join(group)} are correlated (|r| up to {worst:.3f} > {limits.max_correlation}): the data "
-            f"cannot tell them apart, so their individual values are unreliable"
-        )
+    unc["correlated_groups"] = groups = correlation_report(result, names, corr, limits)
+    out += [g["warning"] for g in groups if g["warning"]]
     bad = {n: r for n, r in unc["relative_standard_errors"].items() if not np.isfinite(r) or r > limits.max_relative_se}
     if bad:
         listed = ", ".join(f"{n} ({100 * r:.3g} %)" if np.isfinite(r) else f"{n} (undefined)" for n, r in bad.items())
@@ -218,6 +217,44 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
             f"estimate: {listed}; do not report these values"
         )
     return out
+
+
+def correlation_report(result: dict[str, Any], names: list[str], corr: np.ndarray, limits) -> list[dict[str, Any]]:
+    """Each group of parameters correlated beyond ``limits.max_correlation``, with the power
+    products of its most strongly correlated pair that the record determines best and worst
+    (:mod:`mbus_framework.estimation.combinations`).
+
+    Correlation alone is never a warning: the group's ``warning`` is set only when one of its
+    members has a relative standard error above ``limits.precise_relative_se``, and then
+    names what the record does determine."""
+    unc = result["uncertainty"]
+    rse = unc["relative_standard_errors"]
+    out = []
+    for group, worst in correlated_groups(names, corr, limits.max_correlation):
+        idx = [names.index(n) for n in group]
+        i, j = max(((a, b) for a in idx for b in idx if a < b), key=lambda ab: abs(corr[ab]))
+        pair = [names[i], names[j]]  # the most strongly correlated pair: a readable combination
+        se = np.array([unc["standard_errors"][n] for n in pair])
+        values = np.array([result["parameters"][n] for n in pair])
+        extremes = extreme_combinations(pair, values, corr[np.ix_([i, j], [i, j])] * np.outer(se, se))
+        largest = max((rse[n] if np.isfinite(rse[n]) else np.inf) for n in group)
+        entry: dict[str, Any] = {"parameters": group, "max_correlation": worst, "max_relative_se": largest,
+                                 "best": extremes[0].as_dict() if extremes else None,
+                                 "worst": extremes[1].as_dict() if extremes else None, "warning": None}
+        if largest > limits.precise_relative_se:
+            shown = f"{100 * largest:.3g} %" if np.isfinite(largest) else "undefined"
+            what = (f"; the record determines {extremes[0].expression} to {_pct(extremes[0].relative_se)}"
+                    f" and {extremes[1].expression} only to {_pct(extremes[1].relative_se)}") if extremes else ""
+            entry["warning"] = (
+                f"{_join(group)} are correlated (|r| up to {worst:.3f} > {limits.max_correlation}) and imprecise "
+                f"(relative standard error up to {shown} > {100 * limits.precise_relative_se:.3g} %){what}: "
+                f"report that combination, not their individual values")
+        out.append(entry)
+    return out
+
+
+def _pct(fraction: float) -> str:
+    return f"{100 * fraction:.2g} %" if np.isfinite(fraction) else "an undefined precision"
 
 
 def correlated_groups(names: list[str], corr: np.ndarray, threshold: float) -> list[tuple[list[str], float]]:
