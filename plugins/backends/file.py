@@ -11,6 +11,9 @@ Formats (``format: auto`` picks by what ``path`` is):
   ``response_path`` the response channel's; the excitation channel is aligned with the designed
   excitation of the config and both are cut at the burst start (``processing``); without an
   excitation in the config the burst start is where the excitation channel leaves its rest;
+* a MATLAB ``.mat`` file (level 5, or v7.3 with h5py installed): ``variables`` names the input,
+  output and time variables, the column of a 2-D output and optional sample thickness, density
+  and fluid temperature (:mod:`mbus_plugins.backends.mat_file`);
 * a run directory (or its ``shots/`` folder) written by the ``lab`` backend: every saved
   shot is re-processed with the processing options saved with it (or ``processing``), so a
   run can be re-fitted without the instruments, also after an acquisition that failed
@@ -45,6 +48,7 @@ from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
 
+from mbus_plugins.backends.mat_file import MatVariables, read_mat
 from mbus_plugins.instruments.gds_csv import read_gds_csv
 from mbus_plugins.instruments.shots import (
     SHOT_DIR,
@@ -69,8 +73,10 @@ class FileOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     path: str = Field(description="t,u,y .csv/.npz, a GDS-2000 CSV (excitation channel) or a lab run directory")
     response_path: str | None = Field(None, description="GDS-2000 CSV of the response channel")
-    format: Literal["auto", "tuy", "gds_csv", "lab_run", "run"] = Field(
-        "auto", description="how to read path ('run': a run folder's measurement.csv)")
+    format: Literal["auto", "tuy", "gds_csv", "lab_run", "run", "mat"] = Field(
+        "auto", description="how to read path ('run': a run folder's measurement.csv; 'mat': MATLAB file)")
+    variables: MatVariables | None = Field(
+        None, description=".mat files: which variable is input, output, time, ... (default u, y, t)")
     processing: ProcessingOptions | None = Field(
         None, description="alignment/averaging/gains for GDS CSV pairs and lab runs (default: as saved)")
     counts_per_division: float | None = Field(
@@ -143,12 +149,14 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
 
 
 def sniff_format(path: Path) -> str:
-    """'lab_run' for a folder with saved shots, 'run' for another run folder, 'gds_csv' for a
-    CSV with GDS-2000 header rows, else 'tuy'."""
+    """'lab_run' for a folder with saved shots, 'run' for another run folder, 'mat' for a ``.mat``
+    file, 'gds_csv' for a CSV with GDS-2000 header rows, else 'tuy'."""
     if path.is_dir():
         if find_shot_dir(path) is None and (path / RUN_RECORD).is_file():
             return "run"
         return "lab_run"
+    if path.suffix.lower() == ".mat":
+        return "mat"
     if path.suffix.lower() == ".csv" and path.is_file():
         try:
             head = read_text(path)[:8192]
@@ -250,7 +258,7 @@ class FileBackend(Backend):
     """Recorded data from files (no instruments)."""
 
     Options = FileOptions
-    summary = "recorded t,u,y (.csv/.npz), GDS-2000 CSV exports, or a lab run directory"
+    summary = "recorded t,u,y (.csv/.npz/.mat), GDS-2000 CSV exports, or a lab run directory"
     needs_excitation = False  # the record holds the input
 
     def acquire(self, context: AcquisitionContext) -> Measurement:
@@ -268,6 +276,11 @@ class FileBackend(Backend):
             return read_lab_run(path, reference, o.processing, o.counts_per_division)
         if fmt == "run":
             return read_run_folder(path)
+        if fmt == "mat":
+            return read_mat(path, o.variables)
+        if o.variables is not None:
+            raise DataError(f"{path}: backend.options.variables applies to MATLAB .mat files only "
+                            f"(set format: mat if this is one)")
         return read_record(path)
 
     @staticmethod
