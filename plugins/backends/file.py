@@ -33,14 +33,12 @@ names the file.
 """
 from __future__ import annotations
 
-import io
 import json
-import warnings
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement, check_record
 from mbus_framework.errors import DataError
@@ -49,6 +47,7 @@ from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
 
 from mbus_plugins.backends.mat_file import MatVariables, read_mat
+from mbus_plugins.backends.text_table import TABLE_KEYS, TEXT_SUFFIXES, TableOptions, read_pair, read_table
 from mbus_plugins.instruments.gds_csv import read_gds_csv
 from mbus_plugins.instruments.shots import (
     SHOT_DIR,
@@ -69,9 +68,12 @@ RUN_RECORD = "measurement.csv"
 GDS_HEADER_KEYS = ("memory length", "sampling period", "vertical scale", "source", "firmwave", "format")
 
 
-class FileOptions(BaseModel):
+class FileOptions(TableOptions):
+    """Where the record is and how to read it; the text reader's options are
+    :class:`~mbus_plugins.backends.text_table.TableOptions` (columns, delimiter, ...)."""
+
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(description="t,u,y .csv/.npz, a GDS-2000 CSV (excitation channel) or a lab run directory")
+    path: str = Field(description="t,u,y .csv/.tsv/.txt/.npz, a .mat file, a GDS-2000 CSV (excitation channel) or a lab run directory")
     response_path: str | None = Field(None, description="GDS-2000 CSV of the response channel")
     format: Literal["auto", "tuy", "gds_csv", "lab_run", "run", "mat"] = Field(
         "auto", description="how to read path ('run': a run folder's measurement.csv; 'mat': MATLAB file)")
@@ -83,19 +85,36 @@ class FileOptions(BaseModel):
         None, gt=0, description="lab runs: rescale the saved raw codes with this factor (default: as saved)")
 
 
-def read_record(path: str | Path) -> Measurement:
-    """Read and check a ``t,u,y`` record from CSV or NPZ."""
+def read_record(path: str | Path, table: TableOptions | None = None) -> Measurement:
+    """Read and check a ``t,u,y`` record from delimited text (.csv/.tsv/.txt, with the reader
+    options ``table``) or NPZ (``table.columns`` may name its arrays)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix == ".csv":
-        columns = _read_csv(path)
+    meta: dict = {}
+    if suffix in TEXT_SUFFIXES:
+        columns, meta = read_table(path, read_text(path), table)
     elif suffix == ".npz":
-        columns = _read_npz(path)
+        columns = _read_npz(path, table.columns if table is not None else None)
     elif not path.exists():
         raise DataError(f"{path}: file not found")
     else:
-        raise DataError(f"{path}: unsupported file type '{suffix[:20]}' (use .csv with header t,u,y or .npz)")
-    return check_record(path, columns["t"], columns["u"], columns["y"])
+        raise DataError(f"{path}: unsupported file type '{suffix[:20]}' (use .csv/.tsv/.txt, .npz or .mat; "
+                        f"set format if the content is one of these)")
+    m = check_record(path, columns["t"], columns["u"], columns["y"])
+    m.meta.update(meta)
+    return m
+
+
+def read_text_pair(u_path: Path, y_path: Path, table: TableOptions) -> Measurement:
+    """Two single-channel text files (``time,value``): u from ``u_path``, y from ``y_path``."""
+    for p in (u_path, y_path):
+        if p.suffix.lower() not in TEXT_SUFFIXES:
+            raise DataError(f"{p}: a response_path pair must be GDS-2000 CSV exports or time,value text files "
+                            f"(.csv/.tsv/.txt)")
+    columns, meta = read_pair(u_path, read_text(u_path), y_path, read_text(y_path), table)
+    m = check_record(u_path, columns["t"], columns["u"], columns["y"])
+    m.meta.update(meta, response_source=str(y_path))
+    return m
 
 
 def read_text(path: Path, what: str = "data file") -> str:
@@ -112,36 +131,16 @@ def read_text(path: Path, what: str = "data file") -> str:
         return data.decode("latin-1")
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    text = read_text(path)
-    header, _, body = text.partition("\n")
-    header = header.strip()
-    names = [h.strip().lower() for h in header.split(",")]
-    missing = [c for c in REQUIRED if c not in names]
-    if missing:
-        raise DataError(f"{path}: missing column(s) {', '.join(missing)} in header {header[:60]!r} (expected t,u,y)")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an empty body is reported below, in one line
-            data = np.genfromtxt(io.StringIO(body), delimiter=",", dtype=float, invalid_raise=True)
-    except ValueError as exc:
-        raise DataError(f"{path}: malformed row ({str(exc).splitlines()[-1].strip()[:120]})") from None
-    data = np.atleast_2d(data)
-    if data.size == 0:
-        raise DataError(f"{path}: no data rows")
-    if data.shape[1] != len(names):
-        raise DataError(f"{path}: rows have {data.shape[1]} values but the header has {len(names)} columns")
-    return {c: data[:, names.index(c)] for c in REQUIRED}
-
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
+def _read_npz(path: Path, names: dict | None = None) -> dict[str, np.ndarray]:
     arrays = read_npz(path)
-    missing = [c for c in REQUIRED if c not in arrays]
+    names = {c: str((names or {}).get(c, c)) for c in REQUIRED}
+    missing = [c if names[c] == c else f"{c} ('{names[c]}')" for c in REQUIRED if names[c] not in arrays]
     if missing:
-        raise DataError(f"{path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)[:120] or 'none'})")
+        raise DataError(f"{path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)[:120] or 'none'}); "
+                        f"name them with backend.options.columns: {{t: ..., u: ..., y: ...}}")
     out = {}
     for c in REQUIRED:
-        a = arrays[c]
+        a = arrays[names[c]]
         if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool) or np.iscomplexobj(a):
             raise DataError(f"{path}: array {c} holds {a.dtype} values, not real numbers")
         out[c] = np.asarray(a, dtype=float).ravel()
@@ -271,7 +270,10 @@ class FileBackend(Backend):
         reference = Reference(np.asarray(wave.u, float), wave.sample_rate) if wave is not None else None
         if fmt == "gds_csv":
             y_path = self._resolve(o.response_path, context) if o.response_path else None
+            self._no_table_options(path, fmt)
             return read_gds_pair(path, y_path, reference, o.processing or ProcessingOptions())
+        if fmt != "tuy":
+            self._no_table_options(path, fmt)
         if fmt == "lab_run":
             return read_lab_run(path, reference, o.processing, o.counts_per_division)
         if fmt == "run":
@@ -281,7 +283,15 @@ class FileBackend(Backend):
         if o.variables is not None:
             raise DataError(f"{path}: backend.options.variables applies to MATLAB .mat files only "
                             f"(set format: mat if this is one)")
-        return read_record(path)
+        table = TableOptions.model_validate(o.model_dump(include=set(TABLE_KEYS)))
+        if o.response_path is not None:
+            return read_text_pair(path, self._resolve(o.response_path, context), table)
+        return read_record(path, table)
+
+    def _no_table_options(self, path: Path, fmt: str) -> None:
+        given = sorted(set(TABLE_KEYS) & self.options.model_fields_set)
+        if given:
+            raise DataError(f"{path}: backend.options.{given[0]} applies to t,u,y text files, not to a {fmt} record")
 
     @staticmethod
     def _resolve(name: str, context: AcquisitionContext | None) -> Path:
