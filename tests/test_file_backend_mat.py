@@ -33,7 +33,7 @@ def write(path: Path, n=300, m=4, dt=1e-8, **extra) -> Path:
                                                   ("VW0.mat", 1364, 2.64e-3, 1115, 18.6)])
 def test_shipped_thetascan_files_load_with_the_same_mapping(name, n, h, rho, temp):
     path = THETASCAN / name
-    m = acquire(path, variables=MAPPING)
+    m = acquire(path, variables=MAPPING, pretrigger=False)
     raw = loadmat(path)
     np.testing.assert_array_equal(m.u, raw["s_ref"][:, 0])
     np.testing.assert_array_equal(m.y, raw["s"][:, 0])  # column 0: normal incidence
@@ -44,6 +44,22 @@ def test_shipped_thetascan_files_load_with_the_same_mapping(name, n, h, rho, tem
     assert m.meta["fluid_from_file"]["temperature_C"] == pytest.approx(temp)
     assert m.meta["variables"] == MAPPING and m.meta["column"] == 0
     assert (THETASCAN / "LICENSE").is_file() and "GPL-3.0" in (THETASCAN / "CITATION.cff").read_text()
+
+
+@pytest.mark.parametrize("name", ["VW100a.mat", "VW0.mat"])
+def test_shipped_records_are_cut_where_the_earlier_channel_starts(name):
+    """Substitution records: the shot through the plate leads the reference; neither is cut short."""
+    raw = loadmat(THETASCAN / name)
+    u, y = raw["s_ref"][:, 0], raw["s"][:, 0]
+    m = acquire(THETASCAN / name, variables=MAPPING)
+    p = m.meta["pretrigger"]
+    k = p["samples"]
+    assert p["onset_y_samples"] < p["onset_u_samples"] and k == p["onset_y_samples"] > 100
+    # the pulses stand far above the pre-trigger: the cut keeps all of both
+    assert np.abs(y[:k]).max() < 0.05 * np.abs(y).max() and np.abs(u[:k]).max() < 0.05 * np.abs(u).max()
+    np.testing.assert_allclose(m.u, u[k:] - u[:k].mean())
+    np.testing.assert_allclose(m.y, y[k:] - y[:k].mean())
+    assert m.meta["time_start_s"] == pytest.approx(raw["t"][k, 0])
 
 
 def test_only_the_path_changed_loads_another_file_of_the_same_layout(tmp_path):

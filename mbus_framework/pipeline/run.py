@@ -164,6 +164,8 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     with limits.estimation_boundary(c):  # the uncertainty analysis
         result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
     result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed, m)
+    if isinstance(m.meta.get("pretrigger"), dict):
+        result["pretrigger"] = m.meta["pretrigger"]  # what the file backend cut and subtracted
     measured = [w for w in result.get("warnings", []) if w.startswith(MEASUREMENT_WARNING)]
     others = [w for w in result.get("warnings", []) if not w.startswith(MEASUREMENT_WARNING)]
     result["warnings"] = measured + input_warnings(m, designed) + others

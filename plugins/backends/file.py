@@ -47,6 +47,7 @@ from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
 
 from mbus_plugins.backends.mat_file import MatVariables, read_mat
+from mbus_plugins.backends.pretrigger import remove_pretrigger
 from mbus_plugins.backends.text_table import TABLE_KEYS, TEXT_SUFFIXES, TableOptions, read_pair, read_table
 from mbus_plugins.instruments.gds_csv import read_gds_csv
 from mbus_plugins.instruments.shots import (
@@ -77,6 +78,8 @@ class FileOptions(TableOptions):
     response_path: str | None = Field(None, description="GDS-2000 CSV of the response channel")
     format: Literal["auto", "tuy", "gds_csv", "lab_run", "run", "mat"] = Field(
         "auto", description="how to read path ('run': a run folder's measurement.csv; 'mat': MATLAB file)")
+    pretrigger: bool = Field(
+        True, description="t,u,y and .mat records: cut samples before the onset and subtract their mean (DC offset)")
     variables: MatVariables | None = Field(
         None, description=".mat files: which variable is input, output, time, ... (default u, y, t)")
     processing: ProcessingOptions | None = Field(
@@ -268,25 +271,30 @@ class FileBackend(Backend):
             raise DataError(f"{path}: file not found")
         wave = context.excitation if context is not None else None
         reference = Reference(np.asarray(wave.u, float), wave.sample_rate) if wave is not None else None
-        if fmt == "gds_csv":
-            y_path = self._resolve(o.response_path, context) if o.response_path else None
-            self._no_table_options(path, fmt)
-            return read_gds_pair(path, y_path, reference, o.processing or ProcessingOptions())
         if fmt != "tuy":
             self._no_table_options(path, fmt)
+        if fmt in ("gds_csv", "lab_run", "run") and "pretrigger" in o.model_fields_set:
+            raise DataError(f"{path}: backend.options.pretrigger applies to t,u,y and .mat files; a {fmt} record "
+                            f"is aligned by backend.options.processing.align")
+        if fmt == "gds_csv":
+            y_path = self._resolve(o.response_path, context) if o.response_path else None
+            return read_gds_pair(path, y_path, reference, o.processing or ProcessingOptions())
         if fmt == "lab_run":
             return read_lab_run(path, reference, o.processing, o.counts_per_division)
         if fmt == "run":
             return read_run_folder(path)
         if fmt == "mat":
-            return read_mat(path, o.variables)
-        if o.variables is not None:
+            m = read_mat(path, o.variables)
+        elif o.variables is not None:
             raise DataError(f"{path}: backend.options.variables applies to MATLAB .mat files only "
                             f"(set format: mat if this is one)")
-        table = TableOptions.model_validate(o.model_dump(include=set(TABLE_KEYS)))
-        if o.response_path is not None:
-            return read_text_pair(path, self._resolve(o.response_path, context), table)
-        return read_record(path, table)
+        else:
+            table = TableOptions.model_validate(o.model_dump(include=set(TABLE_KEYS)))
+            if o.response_path is not None:
+                m = read_text_pair(path, self._resolve(o.response_path, context), table)
+            else:
+                m = read_record(path, table)
+        return remove_pretrigger(m, str(path)) if o.pretrigger else m
 
     def _no_table_options(self, path: Path, fmt: str) -> None:
         given = sorted(set(TABLE_KEYS) & self.options.model_fields_set)
