@@ -129,7 +129,7 @@ def load_components(
         run_config = validate_structure(apply_overrides(dict(config), overrides or []), source)
     else:
         source = source or str(config)
-        run_config = load_config(config, overrides)
+        run_config = load_config(config, overrides, check_files=True)
     registry = registry or default_registry()
     with limits.plugin_failures(registry, source):  # a third-party plugin's bug is one named line
         c = build_components(run_config, source, registry)

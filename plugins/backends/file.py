@@ -303,11 +303,11 @@ class FileBackend(Backend):
 
     @staticmethod
     def _resolve(name: str, context: AcquisitionContext | None) -> Path:
+        """A config's paths arrive absolute (:mod:`mbus_framework.pipeline.config_paths`); a
+        relative one (from Python) is taken from the config's folder when known, else as given."""
         path = Path(name)
         if not path.is_absolute() and context is not None and context.config_path not in ("", "<config>"):
-            candidate = Path(context.config_path).parent / path
-            if candidate.exists() and not path.exists():
-                path = candidate
+            return Path(context.config_path).parent / path
         return path
 
 
