@@ -2,9 +2,11 @@
 
 Formats (``format: auto`` picks by what ``path`` is):
 
-* ``.csv`` with header row ``t,u,y`` (any order, extra columns ignored), then one sample per
-  row; t in seconds, u the input, y the output;
-* ``.npz`` with arrays ``t``, ``u``, ``y`` of equal length;
+* ``.csv``/``.tsv``/``.txt`` with header row ``t,u,y`` (any order, extra columns ignored), then
+  one sample per row; t in seconds, u the input, y the output; other layouts with the reader
+  options of :mod:`mbus_plugins.backends.text_table` (``columns``, ``delimiter``, ``decimal``,
+  ``skip_rows``, ``units_row``, ``comment``); with ``response_path``, two ``time,value`` files;
+* ``.npz`` with arrays ``t``, ``u``, ``y`` of equal length (or named by ``columns``);
 * a GDS-2000 CSV export (``key,value`` header rows such as ``Vertical Scale`` and
   ``Sampling Period``, then raw codes or ``time,value`` rows; see
   :mod:`mbus_plugins.instruments.gds_csv`): ``path`` is the excitation channel's file and
@@ -24,8 +26,12 @@ Formats (``format: auto`` picks by what ``path`` is):
   re-fits every run folder.
 
 Files are read with limits (regular files only, at most 512 MiB; NPZ arrays checked before
-they are unpacked); text may be UTF-8 (with or without BOM), UTF-16 with BOM, or any 8-bit
+they are unpacked; the size limit of a compressed .mat file applies to the file, not its
+unpacked arrays); text may be UTF-8 (with or without BOM), UTF-16 with BOM, or any 8-bit
 encoding (header names are ASCII; numbers are numbers).
+
+Text, NPZ and .mat records start at the onset of the earlier channel, with the pre-trigger
+offsets removed (:mod:`mbus_plugins.backends.pretrigger`; ``pretrigger: false`` opts out).
 
 The t,u,y record must be finite, at least 16 samples long, with a uniform, increasing time
 step (relative jitter below 1e-6 of the step). Every problem is reported in one line that
