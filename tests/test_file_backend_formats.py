@@ -77,9 +77,9 @@ def test_tuy_errors_are_unchanged(tmp_path):
         FileBackend(FileOptions(path=str(tmp_path / "bad.csv"))).acquire(context())
     with pytest.raises(DataError, match=r"nope.csv: file not found"):
         FileBackend(FileOptions(path=str(tmp_path / "nope.csv"))).acquire(context())
-    (tmp_path / "x.txt").write_text("1")
-    with pytest.raises(DataError, match=r"x.txt: unsupported file type '.txt'"):
-        FileBackend(FileOptions(path=str(tmp_path / "x.txt"))).acquire(context())
+    (tmp_path / "x.dat").write_text("1")
+    with pytest.raises(DataError, match=r"x.dat: unsupported file type '.dat'"):
+        FileBackend(FileOptions(path=str(tmp_path / "x.dat"))).acquire(context())
 
 
 # -- lab run directories ---------------------------------------------------------------------

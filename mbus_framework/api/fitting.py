@@ -143,10 +143,11 @@ def fit(
 
 
 def load_record(path: str | Path, response_path: str | Path | None = None, **options: Any) -> Record:
-    """Read a record the way the ``file`` backend does: a t,u,y ``.csv``/``.npz``, a GDS-2000
-    CSV export pair (``path`` the excitation channel, ``response_path`` the response), or a
-    ``lab`` run folder. ``options`` are further ``backend.options`` of the file backend
-    (``processing``, ``format``, ``counts_per_division``)."""
+    """Read a record the way the ``file`` backend does: a t,u,y ``.csv``/``.tsv``/``.txt``/``.npz``,
+    a MATLAB ``.mat`` file, a GDS-2000 CSV export pair (``path`` the excitation channel,
+    ``response_path`` the response), or a ``lab`` run folder. ``options`` are further
+    ``backend.options`` of the file backend (reader options such as ``columns``, ``delimiter``,
+    ``decimal``; ``variables`` for .mat files; ``processing``, ``format``, ``counts_per_division``)."""
     from mbus_framework.interfaces.registry import default_registry
     from mbus_framework.pipeline.config import validate_options
 

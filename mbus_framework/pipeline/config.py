@@ -212,9 +212,14 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--
     return out
 
 
-def load_config(path: str | Path, overrides: list[str] | None = None) -> RunConfig:
-    """Read, override and validate (stage 1) a run config."""
-    data = apply_overrides(read_yaml(path), overrides or [])
+def load_config(path: str | Path, overrides: list[str] | None = None, check_files: bool = False) -> RunConfig:
+    """Read, override and validate (stage 1) a run config; file paths become absolute
+    (:mod:`~mbus_framework.pipeline.config_paths`: the file's relative to its folder, ``--set``
+    ones relative to the working directory) and with ``check_files`` the input files must exist."""
+    from mbus_framework.pipeline.config_paths import resolve
+
+    written = read_yaml(path)
+    data = resolve(written, apply_overrides(written, overrides or []), Path(path), str(path), check_files)
     return validate_structure(data, str(path))
 
 

@@ -17,6 +17,10 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     lines.append(f"model {result['model']['name']} {result['model']['options']}")
     first = [w for w in result.get("warnings", []) if w.startswith("measurement: ")]  # partial acquisitions
     lines += [f"  WARNING: {w}" for w in first]
+    pre = result.get("pretrigger") or {}
+    if pre.get("samples"):
+        lines.append(f"  record: {pre['samples']} pre-trigger samples ({pre['seconds']:.3g} s) cut before the onset; "
+                     f"offsets removed: u {pre['offset_u']:.3g}, y {pre['offset_y']:.3g}")
     unc = result.get("uncertainty", {})
     truth = result.get("truth", {})
     err = result.get("error_percent", {})

@@ -130,7 +130,7 @@ def load_components(
         run_config = validate_structure(apply_overrides(dict(config), overrides or []), source)
     else:
         source = source or str(config)
-        run_config = load_config(config, overrides)
+        run_config = load_config(config, overrides, check_files=True)
     registry = registry or default_registry()
     with limits.plugin_failures(registry, source):  # a third-party plugin's bug is one named line
         c = build_components(run_config, source, registry)
@@ -165,6 +165,8 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     with limits.estimation_boundary(c):  # the uncertainty analysis
         result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
     result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed, m)
+    if isinstance(m.meta.get("pretrigger"), dict):
+        result["pretrigger"] = m.meta["pretrigger"]  # what the file backend cut and subtracted
     measured = [w for w in result.get("warnings", []) if w.startswith(MEASUREMENT_WARNING)]
     others = [w for w in result.get("warnings", []) if not w.startswith(MEASUREMENT_WARNING)]
     result["warnings"] = measured + input_warnings(m, designed) + others

@@ -2,15 +2,20 @@
 
 Formats (``format: auto`` picks by what ``path`` is):
 
-* ``.csv`` with header row ``t,u,y`` (any order, extra columns ignored), then one sample per
-  row; t in seconds, u the input, y the output;
-* ``.npz`` with arrays ``t``, ``u``, ``y`` of equal length;
+* ``.csv``/``.tsv``/``.txt`` with header row ``t,u,y`` (any order, extra columns ignored), then
+  one sample per row; t in seconds, u the input, y the output; other layouts with the reader
+  options of :mod:`mbus_plugins.backends.text_table` (``columns``, ``delimiter``, ``decimal``,
+  ``skip_rows``, ``units_row``, ``comment``); with ``response_path``, two ``time,value`` files;
+* ``.npz`` with arrays ``t``, ``u``, ``y`` of equal length (or named by ``columns``);
 * a GDS-2000 CSV export (``key,value`` header rows such as ``Vertical Scale`` and
   ``Sampling Period``, then raw codes or ``time,value`` rows; see
   :mod:`mbus_plugins.instruments.gds_csv`): ``path`` is the excitation channel's file and
   ``response_path`` the response channel's; the excitation channel is aligned with the designed
   excitation of the config and both are cut at the burst start (``processing``); without an
   excitation in the config the burst start is where the excitation channel leaves its rest;
+* a MATLAB ``.mat`` file (level 5, or v7.3 with h5py installed): ``variables`` names the input,
+  output and time variables, the column of a 2-D output and optional sample thickness, density
+  and fluid temperature (:mod:`mbus_plugins.backends.mat_file`);
 * a run directory (or its ``shots/`` folder) written by the ``lab`` backend: every saved
   shot is re-processed with the processing options saved with it (or ``processing``), so a
   run can be re-fitted without the instruments, also after an acquisition that failed
@@ -21,8 +26,12 @@ Formats (``format: auto`` picks by what ``path`` is):
   re-fits every run folder.
 
 Files are read with limits (regular files only, at most 512 MiB; NPZ arrays checked before
-they are unpacked); text may be UTF-8 (with or without BOM), UTF-16 with BOM, or any 8-bit
+they are unpacked; the size limit of a compressed .mat file applies to the file, not its
+unpacked arrays); text may be UTF-8 (with or without BOM), UTF-16 with BOM, or any 8-bit
 encoding (header names are ASCII; numbers are numbers).
+
+Text, NPZ and .mat records start at the onset of the earlier channel, with the pre-trigger
+offsets removed (:mod:`mbus_plugins.backends.pretrigger`; ``pretrigger: false`` opts out).
 
 The t,u,y record must be finite, at least 16 samples long, with a uniform, increasing time
 step (relative jitter below 1e-6 of the step). Every problem is reported in one line that
@@ -30,14 +39,12 @@ names the file.
 """
 from __future__ import annotations
 
-import io
 import json
-import warnings
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement, check_record
 from mbus_framework.errors import DataError
@@ -45,6 +52,9 @@ from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
 
+from mbus_plugins.backends.mat_file import MatVariables, read_mat
+from mbus_plugins.backends.pretrigger import remove_pretrigger
+from mbus_plugins.backends.text_table import TABLE_KEYS, TEXT_SUFFIXES, TableOptions, read_pair, read_table
 from mbus_plugins.instruments.gds_csv import read_gds_csv
 from mbus_plugins.instruments.shots import (
     SHOT_DIR,
@@ -65,31 +75,55 @@ RUN_RECORD = "measurement.csv"
 GDS_HEADER_KEYS = ("memory length", "sampling period", "vertical scale", "source", "firmwave", "format")
 
 
-class FileOptions(BaseModel):
+class FileOptions(TableOptions):
+    """Where the record is and how to read it; the text reader's options are
+    :class:`~mbus_plugins.backends.text_table.TableOptions` (columns, delimiter, ...)."""
+
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(description="t,u,y .csv/.npz, a GDS-2000 CSV (excitation channel) or a lab run directory")
+    path: str = Field(description="t,u,y .csv/.tsv/.txt/.npz, a .mat file, a GDS-2000 CSV (excitation channel) or a lab run directory")
     response_path: str | None = Field(None, description="GDS-2000 CSV of the response channel")
-    format: Literal["auto", "tuy", "gds_csv", "lab_run", "run"] = Field(
-        "auto", description="how to read path ('run': a run folder's measurement.csv)")
+    format: Literal["auto", "tuy", "gds_csv", "lab_run", "run", "mat"] = Field(
+        "auto", description="how to read path ('run': a run folder's measurement.csv; 'mat': MATLAB file)")
+    pretrigger: bool = Field(
+        True, description="t,u,y and .mat records: cut samples before the onset and subtract their mean (DC offset)")
+    variables: MatVariables | None = Field(
+        None, description=".mat files: which variable is input, output, time, ... (default u, y, t)")
     processing: ProcessingOptions | None = Field(
         None, description="alignment/averaging/gains for GDS CSV pairs and lab runs (default: as saved)")
     counts_per_division: float | None = Field(
         None, gt=0, description="lab runs: rescale the saved raw codes with this factor (default: as saved)")
 
 
-def read_record(path: str | Path) -> Measurement:
-    """Read and check a ``t,u,y`` record from CSV or NPZ."""
+def read_record(path: str | Path, table: TableOptions | None = None) -> Measurement:
+    """Read and check a ``t,u,y`` record from delimited text (.csv/.tsv/.txt, with the reader
+    options ``table``) or NPZ (``table.columns`` may name its arrays)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix == ".csv":
-        columns = _read_csv(path)
+    meta: dict = {}
+    if suffix in TEXT_SUFFIXES:
+        columns, meta = read_table(path, read_text(path), table)
     elif suffix == ".npz":
-        columns = _read_npz(path)
+        columns = _read_npz(path, table.columns if table is not None else None)
     elif not path.exists():
         raise DataError(f"{path}: file not found")
     else:
-        raise DataError(f"{path}: unsupported file type '{suffix[:20]}' (use .csv with header t,u,y or .npz)")
-    return check_record(path, columns["t"], columns["u"], columns["y"])
+        raise DataError(f"{path}: unsupported file type '{suffix[:20]}' (use .csv/.tsv/.txt, .npz or .mat; "
+                        f"set format if the content is one of these)")
+    m = check_record(path, columns["t"], columns["u"], columns["y"])
+    m.meta.update(meta)
+    return m
+
+
+def read_text_pair(u_path: Path, y_path: Path, table: TableOptions) -> Measurement:
+    """Two single-channel text files (``time,value``): u from ``u_path``, y from ``y_path``."""
+    for p in (u_path, y_path):
+        if p.suffix.lower() not in TEXT_SUFFIXES:
+            raise DataError(f"{p}: a response_path pair must be GDS-2000 CSV exports or time,value text files "
+                            f"(.csv/.tsv/.txt)")
+    columns, meta = read_pair(u_path, read_text(u_path), y_path, read_text(y_path), table)
+    m = check_record(u_path, columns["t"], columns["u"], columns["y"])
+    m.meta.update(meta, response_source=str(y_path))
+    return m
 
 
 def read_text(path: Path, what: str = "data file") -> str:
@@ -106,36 +140,16 @@ def read_text(path: Path, what: str = "data file") -> str:
         return data.decode("latin-1")
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    text = read_text(path)
-    header, _, body = text.partition("\n")
-    header = header.strip()
-    names = [h.strip().lower() for h in header.split(",")]
-    missing = [c for c in REQUIRED if c not in names]
-    if missing:
-        raise DataError(f"{path}: missing column(s) {', '.join(missing)} in header {header[:60]!r} (expected t,u,y)")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an empty body is reported below, in one line
-            data = np.genfromtxt(io.StringIO(body), delimiter=",", dtype=float, invalid_raise=True)
-    except ValueError as exc:
-        raise DataError(f"{path}: malformed row ({str(exc).splitlines()[-1].strip()[:120]})") from None
-    data = np.atleast_2d(data)
-    if data.size == 0:
-        raise DataError(f"{path}: no data rows")
-    if data.shape[1] != len(names):
-        raise DataError(f"{path}: rows have {data.shape[1]} values but the header has {len(names)} columns")
-    return {c: data[:, names.index(c)] for c in REQUIRED}
-
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
+def _read_npz(path: Path, names: dict | None = None) -> dict[str, np.ndarray]:
     arrays = read_npz(path)
-    missing = [c for c in REQUIRED if c not in arrays]
+    names = {c: str((names or {}).get(c, c)) for c in REQUIRED}
+    missing = [c if names[c] == c else f"{c} ('{names[c]}')" for c in REQUIRED if names[c] not in arrays]
     if missing:
-        raise DataError(f"{path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)[:120] or 'none'})")
+        raise DataError(f"{path}: missing array(s) {', '.join(missing)} (has {', '.join(arrays)[:120] or 'none'}); "
+                        f"name them with backend.options.columns: {{t: ..., u: ..., y: ...}}")
     out = {}
     for c in REQUIRED:
-        a = arrays[c]
+        a = arrays[names[c]]
         if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool) or np.iscomplexobj(a):
             raise DataError(f"{path}: array {c} holds {a.dtype} values, not real numbers")
         out[c] = np.asarray(a, dtype=float).ravel()
@@ -143,12 +157,14 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
 
 
 def sniff_format(path: Path) -> str:
-    """'lab_run' for a folder with saved shots, 'run' for another run folder, 'gds_csv' for a
-    CSV with GDS-2000 header rows, else 'tuy'."""
+    """'lab_run' for a folder with saved shots, 'run' for another run folder, 'mat' for a ``.mat``
+    file, 'gds_csv' for a CSV with GDS-2000 header rows, else 'tuy'."""
     if path.is_dir():
         if find_shot_dir(path) is None and (path / RUN_RECORD).is_file():
             return "run"
         return "lab_run"
+    if path.suffix.lower() == ".mat":
+        return "mat"
     if path.suffix.lower() == ".csv" and path.is_file():
         try:
             head = read_text(path)[:8192]
@@ -250,7 +266,7 @@ class FileBackend(Backend):
     """Recorded data from files (no instruments)."""
 
     Options = FileOptions
-    summary = "recorded t,u,y (.csv/.npz), GDS-2000 CSV exports, or a lab run directory"
+    summary = "recorded t,u,y (.csv/.npz/.mat), GDS-2000 CSV exports, or a lab run directory"
     needs_excitation = False  # the record holds the input
 
     def acquire(self, context: AcquisitionContext) -> Measurement:
@@ -261,6 +277,11 @@ class FileBackend(Backend):
             raise DataError(f"{path}: file not found")
         wave = context.excitation if context is not None else None
         reference = Reference(np.asarray(wave.u, float), wave.sample_rate) if wave is not None else None
+        if fmt != "tuy":
+            self._no_table_options(path, fmt)
+        if fmt in ("gds_csv", "lab_run", "run") and "pretrigger" in o.model_fields_set:
+            raise DataError(f"{path}: backend.options.pretrigger applies to t,u,y and .mat files; a {fmt} record "
+                            f"is aligned by backend.options.processing.align")
         if fmt == "gds_csv":
             y_path = self._resolve(o.response_path, context) if o.response_path else None
             return read_gds_pair(path, y_path, reference, o.processing or ProcessingOptions())
@@ -268,15 +289,31 @@ class FileBackend(Backend):
             return read_lab_run(path, reference, o.processing, o.counts_per_division)
         if fmt == "run":
             return read_run_folder(path)
-        return read_record(path)
+        if fmt == "mat":
+            m = read_mat(path, o.variables)
+        elif o.variables is not None:
+            raise DataError(f"{path}: backend.options.variables applies to MATLAB .mat files only "
+                            f"(set format: mat if this is one)")
+        else:
+            table = TableOptions.model_validate(o.model_dump(include=set(TABLE_KEYS)))
+            if o.response_path is not None:
+                m = read_text_pair(path, self._resolve(o.response_path, context), table)
+            else:
+                m = read_record(path, table)
+        return remove_pretrigger(m, str(path)) if o.pretrigger else m
+
+    def _no_table_options(self, path: Path, fmt: str) -> None:
+        given = sorted(set(TABLE_KEYS) & self.options.model_fields_set)
+        if given:
+            raise DataError(f"{path}: backend.options.{given[0]} applies to t,u,y text files, not to a {fmt} record")
 
     @staticmethod
     def _resolve(name: str, context: AcquisitionContext | None) -> Path:
+        """A config's paths arrive absolute (:mod:`mbus_framework.pipeline.config_paths`); a
+        relative one (from Python) is taken from the config's folder when known, else as given."""
         path = Path(name)
         if not path.is_absolute() and context is not None and context.config_path not in ("", "<config>"):
-            candidate = Path(context.config_path).parent / path
-            if candidate.exists() and not path.exists():
-                path = candidate
+            return Path(context.config_path).parent / path
         return path
 
 

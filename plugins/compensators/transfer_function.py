@@ -56,7 +56,7 @@ class TransferFunctionOptions(BaseModel):
     """``compensator.options`` of ``transfer_function``."""
 
     model_config = ConfigDict(extra="forbid")
-    calibration: str = Field(description="calibration file (.npz or its .json sidecar), relative to the current directory")
+    calibration: str = Field(description="calibration file (.npz or its .json sidecar); in a config relative to its folder")
     mode: Literal["forward", "deconvolve"] = Field("forward", description="model G_TR (forward) or divide it out")
     regularisation: Literal["wiener", "tikhonov"] = Field("wiener", description="deconvolve: regulariser")
     weight: float | None = Field(None, gt=0, description="tikhonov: lambda / max|G_TR|^2 (default: from the noise level)")

@@ -13,7 +13,8 @@ Formats (by suffix): ``.npy`` (1-D array), ``.npz`` (array ``u``, optional ``t``
 ``.txt``, ``.dat`` (comma or whitespace separated numbers; an optional header row of names;
 the column named ``t``/``time`` gives the times, ``column`` picks the values, by name or
 0-based index; without a header, one column is u and with two or more the first is t and
-``column`` defaults to 1). Relative paths are taken from the current directory.
+``column`` defaults to 1). In a config file a relative path is taken from the config's folder
+(:mod:`mbus_framework.pipeline.config_paths`); given directly, from the current directory.
 """
 from __future__ import annotations
 
