@@ -10,7 +10,7 @@ import pytest
 import scipy.io
 
 from mbus_framework.substitution.analysis import analyse
-from mbus_framework.substitution.laws import LAWS, velocity_attenuation, wavenumber
+from mbus_framework.engine.continuum_laws import LAWS, velocity_attenuation, wavenumber
 from mbus_framework.substitution.plate import substitution_ratio, transmission
 from mbus_framework.substitution.record import SubstitutionRecord, read_mat
 from mbus_framework.substitution.water import Water, density, sound_speed

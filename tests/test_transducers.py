@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mbus_framework.compensation.filters import SpectralFilter
-from mbus_framework.compensation.transfer import hold_response
+from mbus_framework.engine.hold import hold_response
 from mbus_framework.engine.simulation import simulate, simulate_ss
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.backend import AcquisitionContext

@@ -37,22 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mbus_framework.engine.hold import hold_response
 from mbus_framework.errors import DataError
 
 
 # ---------------------------------------------------------------------------------------------
 # Estimation
 # ---------------------------------------------------------------------------------------------
-def hold_response(f: np.ndarray, dt: float, hold: str = "zoh") -> np.ndarray:
-    """Frequency response of the input hold: ZOH e^{-i pi f h} sinc(f h), FOH sinc^2(f h)."""
-    x = np.asarray(f, dtype=float) * dt
-    if hold == "zoh":
-        return np.exp(-1j * np.pi * x) * np.sinc(x)
-    if hold == "foh":
-        return np.sinc(x) ** 2 + 0j
-    raise ValueError(f"hold must be 'zoh' or 'foh', not {hold!r}")
-
-
 def onset_index(u: np.ndarray, fraction: float = 0.1) -> int:
     """First sample where |u| exceeds ``fraction`` of its peak."""
     a = np.abs(np.asarray(u, dtype=float))

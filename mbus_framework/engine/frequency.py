@@ -39,6 +39,7 @@ from mbus_framework.engine.simulation import (
     state_space_derivatives,
 )
 from mbus_framework.interfaces.model import MediumModel, StateSpace
+from mbus_framework.engine.hold import hold_response
 
 #: Relative eigenvalue gap below which a divided difference is replaced by the derivative.
 _CLOSE = 1e-7
@@ -83,9 +84,23 @@ def _fdk_term(lam, val, der, q, dt) -> np.ndarray:
     return out
 
 
+def _given_response(model, theta, f: np.ndarray, dt: float | None, jacobian: bool = False):
+    """H (and dH/dtheta as (F, p)) of a model defined by its frequency response; sampled with
+    a zero-order hold (times e^{-i pi f h} sinc(f h), aliases neglected) when ``dt`` is given."""
+    theta = np.asarray(theta, dtype=float)
+    s = 2j * np.pi * f
+    hold = 1.0 if dt is None else hold_response(f, dt, "zoh")
+    if not jacobian:
+        return model.frequency_response(theta, s) * hold
+    H, dH = model.frequency_response_jacobian(theta, s)
+    return H * hold, np.ascontiguousarray((np.atleast_2d(dH) * hold).T)
+
+
 def response(model: MediumModel, theta, f, dt: float | None = None) -> np.ndarray:
     """H(f): continuous (``dt`` None) or ZOH-sampled at interval ``dt`` [s]."""
     f = np.atleast_1d(np.asarray(f, dtype=float))
+    if not getattr(model, "has_state_space", True):
+        return _given_response(model, theta, f, dt)
     ss = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
     mf = modal_form(ss)
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
@@ -103,6 +118,8 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
     """(H (F,), dH/dtheta (F, p)) at frequencies ``f`` [Hz]; see the module docstring."""
     theta = np.asarray(theta, dtype=float)
     f = np.atleast_1d(np.asarray(f, dtype=float))
+    if not getattr(model, "has_state_space", True):
+        return _given_response(model, theta, f, dt, jacobian=True)
     ss = as_float_ss(model.state_space(theta))
     mf = modal_form(ss)
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
@@ -216,6 +233,9 @@ def tail_basis(model: MediumModel, theta, f, dt: float, n_samples: int) -> np.nd
     solve per frequency."""
     theta = np.asarray(theta, dtype=float)
     f = np.atleast_1d(np.asarray(f, dtype=float))
+    # no states: the record's tail is not modelled (the solver drops transient periods)
+    if not getattr(model, "has_state_space", True):
+        return np.zeros((f.size, 0), dtype=complex)
     ss = as_float_ss(model.state_space(theta))
     w = 2 * np.pi * f * dt
     shift = np.exp(-1j * w * n_samples)[:, None]

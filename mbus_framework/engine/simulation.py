@@ -785,6 +785,11 @@ def simulate(
     model: MediumModel, theta, u: np.ndarray, dt: float, hold: Hold = "zoh", *, method: Method = "auto"
 ) -> np.ndarray:
     """Model output y [N] (shape (N,)) for input force u [N] sampled at ``dt`` [s], from rest."""
+    if not getattr(model, "has_state_space", True):
+        from mbus_framework.engine.convolution import simulate_response
+
+        _check_hold(hold)
+        return simulate_response(model, theta, u, dt, hold)
     return simulate_ss(model.state_space(np.asarray(theta, dtype=float)), u, dt, hold, method=method)
 
 
@@ -800,6 +805,8 @@ def simulate_batch(
     """Outputs (B, N) for a batch of parameter vectors ``thetas`` (B, p) and one input u (N,)."""
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     u = np.asarray(u, dtype=float)
+    if not getattr(model, "has_state_space", True):
+        return np.array([simulate(model, th, u, dt, hold) for th in thetas]).reshape(len(thetas), u.shape[-1])
     out = np.empty((thetas.shape[0], u.shape[-1]))
     for b, th in enumerate(thetas):
         out[b] = _simulate_y(as_float_ss(model.state_space(th)), u, float(dt), hold, method)[0]
@@ -830,6 +837,11 @@ def simulate_with_sensitivities(
     """Output y (N,) and exact sensitivities dy/dtheta (N, p) of the sampled model output."""
     theta = np.asarray(theta, dtype=float)
     u = np.asarray(u, dtype=float)
+    if not getattr(model, "has_state_space", True):
+        from mbus_framework.engine.convolution import simulate_response_with_sensitivities
+
+        _check_hold(hold)
+        return simulate_response_with_sensitivities(model, theta, u, dt, hold)
     ss = as_float_ss(model.state_space(theta))
     derivs = state_space_derivatives(model, theta)
     out, _ = _simulate_sens(ss, derivs, u, float(dt), hold, method)
@@ -849,6 +861,9 @@ def simulate_with_sensitivities_batch(
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     u = np.asarray(u, dtype=float)
     N, nb, p = u.shape[-1], thetas.shape[0], thetas.shape[1]
+    if not getattr(model, "has_state_space", True):
+        pairs = [simulate_with_sensitivities(model, th, u, dt, hold) for th in thetas]
+        return np.array([y for y, _ in pairs]).reshape(nb, N), np.array([J for _, J in pairs]).reshape(nb, N, p)
     out = np.empty((nb, 1 + p, N))
     for b, th in enumerate(thetas):
         ss = as_float_ss(model.state_space(th))

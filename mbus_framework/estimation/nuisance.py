@@ -96,6 +96,10 @@ def _shift(x: np.ndarray, k: int) -> np.ndarray:
 def delayed_prediction(model, theta, u, dt, gain: float, delay: float) -> np.ndarray:
     """g * y_model(t_k - tau) for a ZOH input (exact)."""
     theta = np.asarray(theta, dtype=float)
+    if not getattr(model, "has_state_space", True):
+        from mbus_framework.engine.convolution import simulate_response
+
+        return simulate_response(model, theta, u, dt, "zoh", gain, delay)
     if delay == 0.0:
         from mbus_framework.engine.simulation import simulate
 
@@ -108,6 +112,10 @@ def delayed_prediction(model, theta, u, dt, gain: float, delay: float) -> np.nda
 def delayed_prediction_with_jacobian(model, theta, u, dt, gain: float, delay: float):
     """(yhat, d yhat/d theta_model, d yhat/d gain, d yhat/d tau), all exact for ZOH."""
     theta = np.asarray(theta, dtype=float)
+    if not getattr(model, "has_state_space", True):
+        from mbus_framework.engine.convolution import simulate_response_with_sensitivities
+
+        return simulate_response_with_sensitivities(model, theta, u, dt, "zoh", gain, float(delay))
     shift, s = _split_delay(delay, dt)
     ys, Js = simulate_with_sensitivities(_DelayedReadout(model, s), theta, u, dt)
     rate = simulate_ss(_intermediate_readout(model.state_space(theta), s)[1], u, dt)

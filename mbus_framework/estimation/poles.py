@@ -200,7 +200,8 @@ def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: in
     """Starts whose pole pattern matches the record's poles, best first (empty when the
     model's time scaling is not exact, a compensator filters the output, or no poles are
     found)."""
-    if not space.scaled or problem.output_filter is not None or not space.movable.any():
+    if (not getattr(problem.model, "has_state_space", True) or not space.scaled or problem.output_filter is not None
+            or not space.movable.any()):
         return []
     try:
         z = record_poles(problem.u, problem.y, problem.model.n_states)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mbus_framework.compensation.transfer import hold_response
+from mbus_framework.engine.hold import hold_response
 
 #: Log step of the analysis grid: 3 % between lines (a time-scale resolution of 3 %).
 DEFAULT_STEP = 0.03

@@ -370,10 +370,15 @@ def search(
     spectral_ok = s.space.movable.any()
     # 1. the physics-based starts, fitted in the frequency domain first
     queue = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
-    if spectral_ok:
+    raw = [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
+    if not getattr(problem.model, "has_state_space", True):
+        # no states: the spectral stage cannot model the record's unfinished tail, so a
+        # frequency-response model's own physics-based start is fitted in the time domain first
+        queue += raw + (s.seed_candidates(seeds) if spectral_ok else [])
+    elif spectral_ok:
         queue += s.seed_candidates(seeds)
     else:
-        queue += [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
+        queue += raw
     tried = 0
     out_of_time = lambda: time.perf_counter() - t0 > o.time_budget  # noqa: E731
     for c in queue:

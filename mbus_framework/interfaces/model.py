@@ -8,6 +8,11 @@ with u the force on the transmitter side [N] and y the force on the receiver [N]
 Implementations subclass :class:`MediumModel`, write :meth:`MediumModel.state_space`
 with arithmetic only (see :mod:`mbus_framework.engine.arrays`) and register through the
 ``mbus_medium_models`` hook.
+
+Laws with no finite state space (fractional derivatives, power-law attenuation, the exact
+continuum) subclass :class:`FrequencyResponseModel` instead and give only
+H(s; theta) = Y(s)/U(s) and its exact derivatives; the engine then simulates a record by exact
+(zero-padded FFT) convolution (:mod:`mbus_framework.engine.convolution`).
 """
 from __future__ import annotations
 
@@ -83,6 +88,7 @@ class MediumModel(ABC):
 
     Options: ClassVar[type[BaseModel]] = NoOptions
     summary: ClassVar[str] = ""
+    has_state_space: ClassVar[bool] = True
 
     # -- what the model is -------------------------------------------------------------
     @property
@@ -152,3 +158,34 @@ class MediumModel(ABC):
             f"{where}: give all of {', '.join(self.parameter_names)} or all of "
             f"{', '.join(self.property_names)}; missing {', '.join(missing)}"
         )
+
+
+class FrequencyResponseModel(MediumModel):
+    """A medium defined by its transfer function only: y(s) = H(s; theta) u(s), s = i w.
+
+    Subclasses write :meth:`frequency_response` and :meth:`frequency_response_jacobian`
+    (exact derivatives) besides the parameters and properties. The model must be causal with an
+    impulse response that has decayed within the record's length: a record of N samples is
+    simulated by convolution on a zero-padded FFT grid of at least 2N points, exact for such a
+    response (:mod:`mbus_framework.engine.convolution`). No collocation solver (it needs states).
+    """
+
+    has_state_space: ClassVar[bool] = False
+
+    @abstractmethod
+    def frequency_response(self, theta, s: np.ndarray) -> np.ndarray:
+        """H(s) (complex, shape of ``s``) at s = i w [rad/s]."""
+
+    @abstractmethod
+    def frequency_response_jacobian(self, theta, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H(s), dH/dtheta with shape (len(theta), len(s))), exact."""
+
+    def state_space(self, theta) -> StateSpace:
+        from mbus_framework.errors import PluginError
+
+        raise PluginError(f"{type(self).__name__} is defined by its frequency response only: it has no state space "
+                          "(use the scipy_lm or frequency_domain solver)")
+
+    @property
+    def n_states(self) -> int:
+        return 0

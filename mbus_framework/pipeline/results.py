@@ -49,7 +49,7 @@ def build_result(
         "model": {
             "name": c.config.model.name,
             "options": model.options.model_dump(mode="json"),
-            "n_states": int(model.state_space(theta).A.shape[0]),
+            "n_states": int(model.n_states),
         },
         "parameters": fit.parameters,
         "parameter_units": {p.name: p.unit for p in problem.parameters},

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mbus_framework.substitution.laws import LAWS, Law
+from mbus_framework.engine.continuum_laws import LAWS, Law
 
 #: Elements of the chain by default (the most a chain model accepts): cut-off n c / (pi L) far above
 #: the band of mm plates; the chain spans (n - 1) L / n, so its properties carry an O(1/n) bias.

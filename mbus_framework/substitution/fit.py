@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from mbus_framework.substitution.laws import Law, velocity_attenuation, wavenumber
+from mbus_framework.engine.continuum_laws import Law, velocity_attenuation, wavenumber
 from mbus_framework.substitution.model_free import NP_TO_DB_PER_CM, Dispersion
 from mbus_framework.substitution.plate import substitution_ratio
 from mbus_framework.substitution.spectra import Spectra

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mbus_framework.substitution.laws import velocity_attenuation
+from mbus_framework.engine.continuum_laws import velocity_attenuation
 from mbus_framework.substitution.spectra import Spectra, unwrapped_log_ratio
 from mbus_framework.substitution.water import Water
 

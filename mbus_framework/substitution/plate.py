@@ -27,7 +27,7 @@ def transmission(k, Zs, k0, Zw: float, h: float, reverberations: bool = True) ->
 
 def substitution_ratio(M, w, rho: float, h: float, water, passes: int = 2, reverberations: bool = True):
     """S/R = T^P for complex modulus M(w) [Pa] of a plate of density rho [kg/m^3]."""
-    from mbus_framework.substitution.laws import wavenumber
+    from mbus_framework.engine.continuum_laws import wavenumber
 
     k = wavenumber(M, w, rho)
     Zs = rho * w / k
