@@ -176,7 +176,7 @@ def test_marked_shell_commands_run(command, sandbox):
     out = subprocess.run(argv, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     if argv[0] == "mbus-run" and "--list-plugins" not in argv:
-        named = "M0" if "configs/real/" in command else "E_sigma"  # substitution runs fit a material law
+        named = " Pa " if "configs/real/" in command else "E_sigma"  # substitution runs: a law's moduli [Pa]
         assert "property" in out.stdout and named in out.stdout
         assert list(sandbox.glob("runs/*/report.html"))
 

@@ -225,3 +225,33 @@ def test_chains_are_ranked_beside_the_laws_on_a_real_plate():
     a = analyse(read_mat(DATA / "VW100a.mat"), ["constant_q", "kelvin_voigt_chain"])
     assert [f.law.name for f in a.fits] == ["constant_q", "kelvin_voigt_chain"]
     assert not a.passed(a.fits[1])  # a Kelvin-Voigt chain's attenuation grows as f^2
+
+
+def test_residual_structure_tells_white_from_structured_residuals():
+    from mbus_framework.substitution.fit import residual_structure
+
+    rng = np.random.default_rng(4)
+    white = rng.normal(size=400) + 1j * rng.normal(size=400)
+    smooth = np.convolve(white, np.ones(8) / 8, mode="same")  # a misfit that varies slowly with frequency
+    assert residual_structure(white)["p_value"] > 0.01
+    s = residual_structure(smooth)
+    assert s["p_value"] < 1e-6 and s["lag1_correlation"] > 0.5
+
+
+def test_compare_models_ranks_every_family_on_a_real_plate(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "cmp"
+    proc = subprocess.run([sys.executable, "-m", "mbus_framework.cli", str(ROOT / "configs" / "real" / "vw0.yaml"),
+                           "--compare-models", "constant_q,fractional_zener,sls_chain,kelvin_voigt_chain",
+                           "--out", str(out), "--no-plots"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "laws ranked by BIC" in proc.stdout
+    rows = (out / "compare.csv").read_text().splitlines()
+    ranked = [r.split(",")[0] for r in rows[1:]]
+    assert sorted(ranked) == sorted(["constant_q", "fractional_zener", "sls_chain", "kelvin_voigt_chain"])
+    assert ranked[-1] == "kelvin_voigt_chain"  # alpha ~ f^2 cannot follow a near-linear attenuation
+    result = json.loads((out / "result.json").read_text())
+    assert all({"lag1_correlation", "p_value"} <= set(f["residual_structure"]) for f in result["fits"])

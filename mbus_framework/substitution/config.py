@@ -76,11 +76,7 @@ def load(path: str | Path, overrides: list[str] | None = None) -> SubstitutionCo
         data = (source.parent / data).resolve()
     if not data.is_file():
         raise ConfigError(f"{source}: data: {raw['data']}: file not found (looked for {data})")
-    law = raw.get("law", "constant_q")
-    laws = list(LAWS) if law == "all" else ([law] if isinstance(law, str) else list(law or []))
-    bad = [x for x in laws if x not in LAWS]
-    if bad or not laws:
-        raise ConfigError(f"{source}: law: {', '.join(map(str, bad)) or 'empty'}: choose from {', '.join(LAWS)} or 'all'")
+    laws = check_laws(raw.get("law", "constant_q"), str(source))
     variables = raw.get("variables") or {}
     if not isinstance(variables, dict) or set(variables) - set(DEFAULT_VARIABLES):
         raise ConfigError(f"{source}: variables: map any of {', '.join(DEFAULT_VARIABLES)} to the file's variable names")
@@ -101,6 +97,16 @@ def load(path: str | Path, overrides: list[str] | None = None) -> SubstitutionCo
         overrides=values, passes=int(passes), reverberations=bool(raw.get("reverberations", True)), band_dB=band,
         title=str(raw.get("title", "")), output_directory=str(output.get("directory", "runs")) if isinstance(output, dict) else "runs",
     )
+
+
+def check_laws(law, source: str, key: str = "law") -> list[str]:
+    """The law names ``law`` asks for (a name, a list, or "all"), each known; one-line error."""
+    laws = list(LAWS) if law == "all" else ([law] if isinstance(law, str) else list(law or []))
+    bad = [x for x in laws if x not in LAWS]
+    if bad or not laws:
+        where = f"{source}: {key}" if key == "law" else key
+        raise ConfigError(f"{where}: {', '.join(map(str, bad)) or 'empty'}: choose from {', '.join(LAWS)} or 'all'")
+    return laws
 
 
 def _number(source: Path, key: str, value, positive: bool) -> float:

@@ -35,6 +35,7 @@ class LawFit:
     bic: float
     nfev: int
     status: str
+    structure: dict = field(default_factory=dict)  # residual structure across lines (residual_structure)
     dispersion: Dispersion = field(repr=False, default=None)
     velocity_se: np.ndarray = field(repr=False, default=None)
     attenuation_se: np.ndarray = field(repr=False, default=None)
@@ -87,9 +88,26 @@ def fit_law(problem: SubstitutionProblem, law: Law, reference: Dispersion) -> La
     explained = 1.0 - ssr / energy
     bic = m * np.log(ssr / m) + n * np.log(m)
     values = np.exp(sol.x)
-    out = LawFit(law, values, cov, w0, problem.rho, explained, float(bic), int(sol.nfev), str(sol.message))
+    out = LawFit(law, values, cov, w0, problem.rho, explained, float(bic), int(sol.nfev), str(sol.message),
+                 residual_structure(sol.fun[: m // 2] + 1j * sol.fun[m // 2 :]))
     out.dispersion, out.velocity_se, out.attenuation_se = law_dispersion(law, sol.x, cov, w0, problem.rho, reference.f)
     return out
+
+
+def residual_structure(d: np.ndarray, lags: int = 10) -> dict:
+    """How structured the complex residual d_k is across neighbouring lines: autocorrelation
+    r_j = Re sum d_k conj(d_{k+j}) / sum |d_k|^2 and the Ljung-Box statistic
+    Q = F (F + 2) sum_{j<=lags} r_j^2 / (F - j), chi-square with ``lags`` degrees of freedom for
+    a white residual (p near 0: the law leaves a systematic, frequency-dependent misfit)."""
+    from scipy.special import chdtrc
+
+    d = np.asarray(d, dtype=complex)
+    F = d.size
+    lags = max(1, min(lags, F // 4))
+    power = float(np.sum(np.abs(d) ** 2)) or 1.0
+    r = np.array([float(np.real(np.sum(d[:-j] * np.conj(d[j:])))) / power for j in range(1, lags + 1)])
+    Q = float(F * (F + 2) * np.sum(r**2 / (F - np.arange(1, lags + 1))))
+    return {"lag1_correlation": float(r[0]), "ljung_box_Q": Q, "lags": int(lags), "p_value": float(chdtrc(lags, Q))}
 
 
 def law_dispersion(law: Law, x: np.ndarray, cov: np.ndarray, w0: float, rho: float, f: np.ndarray):

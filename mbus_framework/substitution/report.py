@@ -47,6 +47,7 @@ def _fit_section(fit: LawFit, a: SubstitutionAnalysis) -> dict[str, Any]:
         "attenuation_at_centre_dB_per_cm": a0,
         "explained_in_band_energy": fit.explained,
         "bic": fit.bic,
+        "residual_structure": fit.structure,
         "nfev": fit.nfev,
         "solver_message": fit.status,
         "dispersion": {
@@ -99,15 +100,35 @@ def summary(a: SubstitutionAnalysis, run_dir: Path | None = None) -> str:
         lines.append(f"  {row['frequency_Hz'] / 1e6:6.2f}  {row['velocity_model']:8.1f}  {row['velocity_model_free']:12.1f}"
                      f"   {row['attenuation_model_dB_cm']:11.2f}  {row['attenuation_model_free_dB_cm']:16.2f}  {'ok' if ok else 'DIFFERS'}")
     if len(a.fits) > 1:
-        lines.append("laws ranked by BIC (lower is better):")
-        for f in a.fits:
-            lines.append(f"  {f.law.name:<13} BIC {f.bic:9.1f}  explains {100 * f.explained:6.2f} %  "
-                         f"{'agrees with model-free' if a.passed(f) else 'departs from model-free'}")
+        lines += ranking_lines(a)
     w = warnings_for(a)
     lines += [f"WARNING: {x}" for x in w] or ["No warnings"]
     if run_dir is not None:
         lines.append(f"run folder: {run_dir}")
     return "\n".join(lines)
+
+
+def ranking_lines(a: SubstitutionAnalysis) -> list[str]:
+    """The laws ranked by BIC with the in-band energy they explain, the structure left in their
+    residual (lag-1 correlation across lines, Ljung-Box p) and the model-free verdict."""
+    out = ["laws ranked by BIC (lower is better; residual r1: lag-1 correlation across lines, 0 if white):",
+           f"  {'law':<18} {'params':>6} {'BIC':>9} {'dBIC':>8} {'explains':>9} {'r1':>6}  model-free"]
+    b0 = a.fits[0].bic
+    for f in a.fits:
+        out.append(f"  {f.law.name:<18} {len(f.values):>6} {f.bic:9.1f} {f.bic - b0:8.1f} {100 * f.explained:8.2f}% "
+                   f"{f.structure.get('lag1_correlation', float('nan')):6.2f}  "
+                   f"{'agrees' if a.passed(f) else 'departs'}")
+    return out
+
+
+def write_ranking_csv(a: SubstitutionAnalysis, path: Path) -> None:
+    """compare.csv: one row per law, best BIC first."""
+    head = "law,parameters,bic,delta_bic,explained_fraction,residual_lag1_correlation,ljung_box_p,agrees_with_model_free"
+    rows = [head] + [
+        f"{f.law.name},{len(f.values)},{f.bic:.6g},{f.bic - a.fits[0].bic:.6g},{f.explained:.6g},"
+        f"{f.structure.get('lag1_correlation', float('nan')):.4g},{f.structure.get('p_value', float('nan')):.4g},"
+        f"{a.passed(f)}" for f in a.fits]
+    path.write_text("\n".join(rows) + "\n")
 
 
 def write_dispersion_csv(a: SubstitutionAnalysis, path: Path) -> None:
