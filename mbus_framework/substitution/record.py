@@ -54,27 +54,33 @@ def read_mat(
     overrides: dict[str, float] | None = None,
     passes: int = 2,
 ) -> SubstitutionRecord:
-    """Read a MATLAB (v5) file. ``variables`` maps record fields to the file's variable names
+    """Read a MATLAB file (level 5, or v7.3 with h5py: :mod:`mbus_framework.pipeline.matlab`, the
+    reader the file backend uses). ``variables`` maps record fields to the file's variable names
     (defaults :data:`DEFAULT_VARIABLES`); ``column`` picks the column of a 2-D sample variable;
-    ``overrides`` gives thickness/density/temperature_C/dt instead of reading them."""
-    import scipy.io
+    ``overrides`` gives thickness/density/temperature_C/dt instead of reading them. Errors are
+    one line naming the file and the variable (ValueError)."""
+    from mbus_framework.errors import DataError
+    from mbus_framework.pipeline.matlab import load_mat
 
     path = Path(path)
     names = {**DEFAULT_VARIABLES, **(variables or {})}
     overrides = dict(overrides or {})
+    if not path.is_file():
+        raise ValueError(f"{path}: file not found")
     try:
-        data = scipy.io.loadmat(str(path))
-    except FileNotFoundError:
-        raise ValueError(f"{path}: file not found") from None
-    except Exception as exc:  # scipy raises MatReadError, ValueError, TypeError, ... for bad files
-        raise ValueError(f"{path}: not a readable MATLAB v5 file ({str(exc).splitlines()[0]})") from None
+        data = load_mat(path)
+    except DataError as exc:
+        raise ValueError(str(exc)) from None
 
     def get(field_name: str) -> np.ndarray:
         var = names[field_name]
         if var not in data:
-            present = ", ".join(k for k in data if not k.startswith("__"))
+            present = ", ".join(sorted(data))
             raise ValueError(f"{path}: no variable {var!r} for the {field_name} (variables: {present})")
-        return np.asarray(data[var], dtype=float)
+        try:
+            return np.asarray(data[var], dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: variable {var!r} ({field_name}) does not hold real numbers") from None
 
     def scalar(field_name: str, key: str) -> float:
         if key in overrides:

@@ -17,7 +17,6 @@ Every problem is one line naming the file and the variable or option.
 """
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +25,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from mbus_framework.errors import DataError
 from mbus_framework.interfaces.backend import Measurement, check_record
-from mbus_framework.pipeline.storage import read_regular_file
+from mbus_framework.pipeline.matlab import load_mat
 
 OPTION = "backend.options.variables"
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
 class MatVariables(BaseModel):
@@ -51,40 +49,6 @@ class MatVariables(BaseModel):
         if self.sample_interval is not None and self.sample_rate is not None:
             raise ValueError("give sample_interval or sample_rate, not both")
         return self
-
-
-def load_mat(path: Path) -> dict[str, np.ndarray]:
-    """Every variable of a ``.mat`` file (level 5 via scipy, v7.3 via h5py), by name."""
-    data = read_regular_file(path, "MATLAB file")
-    if data[512:520] == HDF5_SIGNATURE or data[:8] == HDF5_SIGNATURE:
-        return _load_hdf5(path, data)
-    from scipy.io import loadmat
-
-    try:
-        raw = loadmat(io.BytesIO(data), squeeze_me=False, mat_dtype=False)
-    except NotImplementedError:  # scipy's words for v7.3 without the HDF5 signature where expected
-        return _load_hdf5(path, data)
-    except Exception as exc:  # noqa: BLE001 - scipy raises ValueError, TypeError, OSError, ...
-        detail = " ".join(str(exc).split())[:100] or type(exc).__name__
-        raise DataError(f"{path}: not a readable MATLAB .mat file ({detail})") from None
-    return {k: v for k, v in raw.items() if not k.startswith("__")}
-
-
-def _load_hdf5(path: Path, data: bytes) -> dict[str, np.ndarray]:
-    try:
-        import h5py
-    except ImportError:
-        raise DataError(f"{path}: MATLAB v7.3 (HDF5) file; reading it needs h5py (pip install h5py), "
-                        f"or re-save it in MATLAB with save(..., '-v7')") from None
-    out: dict[str, np.ndarray] = {}
-    try:
-        with h5py.File(io.BytesIO(data), "r") as f:
-            for name, item in f.items():
-                if isinstance(item, h5py.Dataset) and not name.startswith("#"):
-                    out[name] = np.asarray(item[()]).T  # MATLAB writes column-major: transpose back
-    except Exception as exc:  # noqa: BLE001
-        raise DataError(f"{path}: not a readable MATLAB v7.3 file ({' '.join(str(exc).split())[:100]})") from None
-    return out
 
 
 def _numeric(path: Path, name: str, role: str, value: Any) -> np.ndarray:
