@@ -87,6 +87,7 @@ TRUTHS = {
     "zener": np.array([5.6e9, 6.4e9, 6.0e-8]),
     "constant_q": np.array([6.2e9, 0.012]),
     "power_law": np.array([3.0e9, 2.0e8, 0.15]),
+    "fractional_zener": np.array([5.4e9, 6.6e9, 6.0e-8, 0.6]),
 }
 
 
@@ -101,7 +102,7 @@ def test_model_free_dispersion_is_the_true_one_on_a_simulated_plate(law_name):
     np.testing.assert_allclose(a.model_free.attenuation[inner], alpha[inner], rtol=0.02, atol=1.0)
 
 
-@pytest.mark.parametrize("law_name", ["kelvin_voigt", "zener", "constant_q"])
+@pytest.mark.parametrize("law_name", ["kelvin_voigt", "zener", "constant_q", "fractional_zener"])
 def test_each_law_recovers_its_own_plate_from_noisy_records(law_name):
     rec, law, _ = _simulated(law_name, TRUTHS[law_name], noise=1e-3, seed=3)
     a = analyse(rec, [law_name])
