@@ -63,6 +63,25 @@ def test_an_output_folder_holding_a_run_needs_overwrite(tmp_path):
     assert yaml.safe_load((out / "config.yaml").read_text())["title"] == "second"
 
 
+def test_a_folder_whose_run_failed_before_measuring_is_reused(tmp_path):
+    """Issue 27 item 7: a bad data file leaves only config.yaml and status 'failed'; the next try
+    with the same -o needs no --overwrite. A failed folder that holds data is still protected."""
+    bad = tmp_path / "empty.csv"
+    bad.write_text("t,u,y\n")
+    path = write_yaml(tmp_path / "run.yaml", config(backend=file_backend(bad)))
+    out = tmp_path / "out"
+    first = run_cli([path, "-o", out, "-q"])
+    assert first.code != 0 and strict_json(out / "status.json")["status"] == "failed"
+    again = run_cli([path, "-o", out, "-q"])
+    assert "already holds" not in again.err and strict_json(out / "status.json")["status"] == "failed"
+    good = write_yaml(tmp_path / "good.yaml", config())
+    assert run_cli([good, "-o", out, "-q"]).code == 0
+    assert strict_json(out / "status.json")["status"] == "done"
+    (out / "status.json").write_text(json.dumps({"status": "failed"}))  # failed after writing results
+    o = run_cli([good, "-o", out, "-q"])
+    assert o.code == 2 and "already holds" in o.err
+
+
 def test_a_folder_that_is_not_a_run_is_never_overwritten(tmp_path):
     path = write_yaml(tmp_path / "run.yaml", config())
     mine = tmp_path / "thesis"

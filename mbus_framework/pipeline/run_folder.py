@@ -4,8 +4,9 @@ Every run writes into a folder of its own, and two runs never share one:
 
 * a default folder ``<output.directory>/<date-time>-<config>`` is created with ``mkdir``,
   which fails if the folder exists, so two runs started in the same second get ``...-2``;
-* a folder named with ``-o`` is used only if it is new or empty; a folder that holds a run
-  is replaced only with ``--overwrite`` (and only if it is an mbus run folder);
+* a folder named with ``-o`` is used only if it is new or empty, or holds a run that failed
+  before anything was measured (only its config copy and status); a folder that holds a run is
+  replaced only with ``--overwrite`` (and only if it is an mbus run folder);
 * while a run works in its folder it holds an exclusive lock (``flock`` on the folder, POSIX),
   so a second run naming the same folder stops with "in use by another run";
 * ``status.json`` says what the folder holds: ``running``, ``done``, ``failed`` (with the
@@ -119,7 +120,7 @@ class RunFolder:
         try:
             entries = list(path.iterdir())
             if entries:
-                if not overwrite:
+                if not overwrite and not _failed_before_measuring(path, entries):
                     raise RunFolderError(
                         f"{path}: already holds {_describe(path)}; name a new output folder, or pass --overwrite "
                         f"to replace it")
@@ -173,6 +174,19 @@ class RunFolder:
 
 
 # -- helpers ---------------------------------------------------------------------------------
+#: What a run leaves behind when it fails before any data exists (reusable without --overwrite).
+BEFORE_DATA = {"config.yaml", STATUS_FILE}
+
+
+def _failed_before_measuring(path: Path, entries: list[Path]) -> bool:
+    """True for a folder whose run failed before anything was measured or written (only its
+    config copy and status): nothing is lost by reusing it."""
+    if {e.name for e in entries} - BEFORE_DATA:
+        return False
+    try:
+        return json.loads((path / STATUS_FILE).read_text()).get("status") == FAILED
+    except (OSError, ValueError, AttributeError):
+        return False
 def _make_parent(parent: Path) -> None:
     try:
         parent.mkdir(parents=True, exist_ok=True)
