@@ -51,9 +51,11 @@ KFOLD = 5
 STRUCTURE_SUBSET = 2000
 
 
-def validation_for(n: int, loo_max: int = LOO_MAX, folds: int = KFOLD) -> tuple[str, int | None]:
+def validation_for(n: int, loo_max: int | None = None, folds: int | None = None) -> tuple[str, int | None]:
     """(name, folds) of the validation used for n samples: ('leave-one-out', None) up to
-    ``loo_max``, else ('5-fold cross-validation', 5)."""
+    ``loo_max`` (default ``LOO_MAX``), else ('5-fold cross-validation', 5) (``KFOLD``)."""
+    loo_max = LOO_MAX if loo_max is None else loo_max
+    folds = KFOLD if folds is None else folds
     if n <= loo_max:
         return "leave-one-out", None
     return f"{folds}-fold cross-validation", folds
