@@ -66,6 +66,37 @@ def apples_table(rows: int, seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:
     return pd.DataFrame(out), panel
 
 
+def brute_force_lda_estimate(table: pd.DataFrame, folds: int = 200) -> dict:
+    """The previous method, for comparison: scikit-learn LDA refitted per left-out sample.
+    Times ``folds`` leave-one-out folds on all four log properties (one thread) and
+    extrapolates to n folds x 7 property sets; also checks the closed form on those folds."""
+    from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
+    from threadpoolctl import threadpool_limits
+
+    from mbus_framework.analysis.classify.loo import closed_form_loo
+
+    props = ["E_sigma", "eta_sigma", "E_tau", "eta_tau"]
+    X = np.log10(table[props].to_numpy(dtype=float))
+    groups = list(dict.fromkeys(table["material"]))
+    labels = np.array([groups.index(g) for g in table["material"]])
+    k, n = len(groups), len(labels)
+    rows = np.random.default_rng(0).choice(n, folds, replace=False)
+    pred = np.empty(folds, dtype=int)
+    with threadpool_limits(1):
+        t0 = time.process_time()
+        for j, i in enumerate(rows):
+            keep = np.arange(n) != i
+            lda = LinearDiscriminantAnalysis(priors=np.full(k, 1.0 / k)).fit(X[keep], labels[keep])
+            pred[j] = lda.predict(X[i:i + 1])[0]
+        per_fold = (time.process_time() - t0) / folds
+        t0 = time.process_time()
+        fast = closed_form_loo(X, labels, k)
+        closed = time.process_time() - t0
+    return {"method": "sklearn LDA refitted per left-out sample (before)", "folds_timed": folds,
+            "cpu_s_per_fold": round(per_fold, 5), "cpu_s_extrapolated_7_sets": round(per_fold * n * 7, 1),
+            "closed_form_cpu_s_one_set": round(closed, 4), "agree_on_timed_folds": bool(np.array_equal(fast[rows], pred))}
+
+
 def timed(args: list[str]) -> dict:
     """Run ``mbus-analyze ARGS`` in a new process: wall s, the child's peak RSS (MB), output."""
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -106,6 +137,7 @@ def main() -> int:
             "lda_percent_all_four": doc["results"]["lda"][", ".join(doc["property_sets"][-1])]["percent_correct"],
             "figure_written": (tmp / "classify" / "discriminant_space.png").is_file(), "target_s": 15,
         }
+        res["classify"]["lda_before"] = brute_force_lda_estimate(pd.read_csv(table))
         print(f"classify: {res['classify']['median_wall_s']} s wall, {res['classify']['median_cpu_s']} s CPU, {res['classify']['peak_rss_mb']} MB", flush=True)
         if not a.skip_crispness:
             t0 = time.perf_counter()
