@@ -151,3 +151,13 @@ def test_large_json_is_compact_and_equal(tmp_path, monkeypatch):
     write_json(tmp_path / "big.json", data)
     text = (tmp_path / "big.json").read_text()
     assert "\n " not in text and json.loads(text) == {"a": [0, 1, 2, 3, 4], "b": {"x": 1.5}, "d": "s"}
+
+
+def test_constant_property_column_is_a_one_line_error(tmp_path, capsys):
+    df = grouped_table(TABLE_4_2, 4, seed=1)
+    df["eta_tau"] = 5.0e5
+    path = tmp_path / "t.csv"
+    df.to_csv(path, index=False)
+    assert main(["classify", str(path), "--by", "material", "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'eta_tau'" in err and "same value" in err

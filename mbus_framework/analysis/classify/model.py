@@ -241,6 +241,11 @@ def classify(df, by: str, sets: Sequence[Sequence[str]] | None = None, *, log: b
 def _classify_set(feats, rows, labels, k, ids, features, results, log, standardize, restarts, seed, source) -> None:
     """Both methods on one property set, stored into ``features`` and ``results``."""
     X = transform(rows[list(feats)].to_numpy(dtype=float), feats, log=log, ids=ids, source=source)
+    constant = [f for f, sd in zip(feats, X.std(axis=0)) if not sd > 0]
+    if constant:
+        value = rows[constant[0]].iloc[0]
+        raise DataError(f"{source}: column '{constant[0]}' has the same value ({value:.6g}) in every usable row, so it "
+                        "cannot separate groups; leave it out (--properties / --sets)")
     if standardize:
         sd = X.std(axis=0)
         X = (X - X.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
