@@ -161,3 +161,16 @@ def test_constant_property_column_is_a_one_line_error(tmp_path, capsys):
     assert main(["classify", str(path), "--by", "material", "--out", str(tmp_path / "o"), "--no-plots"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "'eta_tau'" in err and "same value" in err
+
+
+def test_k_fold_in_parallel_processes_gives_the_serial_result():
+    from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
+    from mbus_framework.analysis.crispness.validation import cross_validate
+
+    rng = np.random.default_rng(4)
+    X = rng.uniform(1.0, 2.0, size=(40, 2))
+    y = np.tanh(X[:, 0] - X[:, 1]) + 0.05 * rng.normal(size=40)
+    est = LMNetworkRegressor(hidden_layer_sizes=(2,), n_restarts=1, n_members=1)
+    serial = cross_validate(est, X, y, seed=5, folds=4, n_jobs=1).predictions
+    parallel = cross_validate(est, X, y, seed=5, folds=4, n_jobs=2).predictions
+    assert np.array_equal(serial, parallel)

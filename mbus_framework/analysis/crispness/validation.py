@@ -20,6 +20,7 @@ network-structure comparison, sensitivities (eq. 7.2) and the linear baseline.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -80,30 +81,45 @@ def leave_one_out(estimator, X, y, seed: int | None = 0, progress=None, descript
     return cross_validate(estimator, X, y, seed, progress, description, keep_models, folds=None)
 
 
+def _fit_fold(estimator, X, y, train, test, seed):
+    est = clone(estimator)
+    if seed is not None:
+        est.set_params(random_state=seed)
+    est.fit(X[train], y[train])
+    return test, est.predict(X[test]), est
+
+
 def cross_validate(estimator, X, y, seed: int | None = 0, progress=None, description: str = "leave-one-out",
-                   keep_models: bool = False, folds: int | None = None) -> LooResult:
+                   keep_models: bool = False, folds: int | None = None, n_jobs: int | None = None) -> LooResult:
     """Out-of-fold predictions of ``estimator``: leave-one-out when ``folds`` is None, else
     ``folds``-fold with the samples shuffled by ``seed``; fold k's estimator gets seed
-    ``fold_seeds(seed, n_folds)[k]``."""
+    ``fold_seeds(seed, n_folds)[k]``. K-fold folds run in ``n_jobs`` processes (default: one per
+    CPU, at most ``folds``); the result does not depend on it."""
     from sklearn.model_selection import KFold
 
     X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
     n = len(y)
     splitter = LeaveOneOut() if folds is None else KFold(n_splits=folds, shuffle=True, random_state=fold_seeds(seed, 1)[0])
     n_folds = n if folds is None else folds
-    seeds = fold_seeds(seed, n_folds)
+    seeded = "random_state" in estimator.get_params()
+    seeds = fold_seeds(seed, n_folds) if seeded else [None] * n_folds
+    if n_jobs is None:
+        n_jobs = 1 if folds is None else min(folds, os.cpu_count() or 1)
     pred = np.empty(n)
     models = [] if keep_models else None
-    seeded = "random_state" in estimator.get_params()
+    jobs = [(train, test, seeds[k]) for k, (train, test) in enumerate(splitter.split(X))]
     if progress is not None:
         progress.start(description, total=n_folds)
     try:
-        for k, (train, test) in enumerate(splitter.split(X)):
-            est = clone(estimator)
-            if seeded:
-                est.set_params(random_state=seeds[k])
-            est.fit(X[train], y[train])
-            pred[test] = est.predict(X[test])
+        if n_jobs > 1:
+            from joblib import Parallel, delayed
+
+            results = Parallel(n_jobs=n_jobs, return_as="generator")(
+                delayed(_fit_fold)(estimator, X, y, tr, te, sd) for tr, te, sd in jobs)
+        else:
+            results = (_fit_fold(estimator, X, y, tr, te, sd) for tr, te, sd in jobs)
+        for test, p, est in results:  # in fold order
+            pred[test] = p
             if models is not None:
                 models.append(est)
             if progress is not None:
