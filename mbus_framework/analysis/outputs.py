@@ -30,7 +30,30 @@ def _standard(obj):
     return obj
 
 
+#: documents larger than this (bytes, compact) are written without indentation: the indenting
+#: encoder is pure Python and takes seconds on the per-sample assignments of a 10,000-row table
+COMPACT_ABOVE = 1_000_000
+
+
+def _numpy_default(obj):
+    import numpy as np
+
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(type(obj).__name__)
+
+
 def write_json(path: str | Path, data) -> Path:
-    """Write ``data`` as indented standard JSON (numpy converted, NaN -> null), atomically."""
-    text = json.dumps(_standard(to_jsonable(data)), indent=2, allow_nan=False) + "\n"
-    return atomic_write_text(path, text)
+    """Write ``data`` as standard JSON (numpy converted, NaN -> null), atomically: indented,
+    or compact when larger than ``COMPACT_ABOVE`` bytes."""
+    try:  # the C encoder: fast, refuses NaN and unknown types
+        text = json.dumps(data, default=_numpy_default, allow_nan=False)
+    except (TypeError, ValueError):
+        text = None
+    if text is None or len(text) <= COMPACT_ABOVE:
+        text = json.dumps(_standard(to_jsonable(data)), indent=2, allow_nan=False)
+    return atomic_write_text(path, text + "\n")

@@ -53,9 +53,11 @@ def _sets(args, df) -> list[tuple[str, ...]] | None:
 def run(args: argparse.Namespace) -> int:
     if args.restarts < 1:
         raise DataError(f"--restarts must be at least 1 (got {args.restarts})")
+    from mbus_framework.pipeline.progress import make_long_progress
+
     df = read_table(args.table)
     result = classify(df, args.by, _sets(args, df), log=args.transform == "log", standardize=args.standardize,
-                      restarts=args.restarts, seed=args.seed, source=str(args.table))
+                      restarts=args.restarts, seed=args.seed, source=str(args.table), progress=make_long_progress())
     out = output_dir(args.table, args.out, f"classify_{args.by}")
     paths = write_reports(result, out, str(args.table))
     if args.plots:

@@ -53,7 +53,7 @@ def to_dict(result: Classification, table: str = "") -> dict:
         "samples_per_group": sizes, "rows": result.counts,
         "preprocessing": {"log10": result.log, "standardize": result.standardize},
         "kmeans": {"restarts": result.restarts, "seed": result.seed},
-        "lda": {"priors": "equal", "validation": "leave-one-out"},
+        "lda": {"priors": "equal", "validation": lda_validation_text(result)},
         "property_sets": [list(s) for s in result.features],
         "results": {},
     }
@@ -66,13 +66,23 @@ def to_dict(result: Classification, table: str = "") -> dict:
                 "not_separated": [[result.groups[i], result.groups[j]] for i, j in r.not_separated],
                 "assigned": {sid: result.groups[p] for sid, p in zip(result.sample_ids, r.predicted)},
                 "notes": r.notes,
+                **({"validation": r.validation} if r.validation else {}),
             } for feats, r in res.items()}
     return out
 
 
+def lda_validation_text(result: Classification) -> str:
+    """The LDA validation used: 'leave-one-out', or each set's when K-fold was needed somewhere."""
+    used = {set_label(f): r.validation for f, r in result.results["lda"].items()}
+    kinds = set(used.values())
+    if len(kinds) == 1:
+        return kinds.pop()
+    return "; ".join(f"{label}: {v}" for label, v in used.items())
+
+
 def render_text(result: Classification) -> str:
     """The printed report: exclusions, the layout table and the groups not separated."""
-    lines = [describe_exclusions(result.counts), ""]
+    lines = [describe_exclusions(result.counts), f"LDA validation: {lda_validation_text(result)}", ""]
     table = layout_table(result)
     for method, title in METHODS.items():
         lines.append(title)

@@ -9,9 +9,19 @@ structure comparison and sensitivities (eq. 7.2), ``panel`` the sensory panel's 
 import::
 
     from mbus_framework.analysis.crispness import LMNetworkRegressor, leave_one_out
-"""
-from mbus_framework.analysis.crispness.model import CrispnessModel
-from mbus_framework.analysis.crispness.regressor import LMNetworkRegressor
-from mbus_framework.analysis.crispness.validation import leave_one_out, sensitivities, structure_comparison
 
-__all__ = ["CrispnessModel", "LMNetworkRegressor", "leave_one_out", "sensitivities", "structure_comparison"]
+Those names are imported on first use (PEP 562), so ``mbus-analyze`` reading the subcommands'
+arguments does not load scikit-learn.
+"""
+import importlib
+
+_WHERE = {"CrispnessModel": "model", "LMNetworkRegressor": "regressor", "leave_one_out": "validation",
+          "cross_validate": "validation", "sensitivities": "validation", "structure_comparison": "validation"}
+
+__all__ = list(_WHERE)
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -83,7 +83,10 @@ def write_tables(out: Path, res: dict, data: pd.DataFrame) -> list[Path]:
 
 
 def write_json(path: Path, res: dict) -> Path:
-    doc = {k: res[k] for k in ("table", "panel", "seed", "n_samples", "group", "notes", "network", "change", "files")}
+    doc = {k: res[k] for k in ("table", "panel", "seed", "n_samples", "group", "notes", "network", "change", "files",
+                                "validation")}
+    if "structure_validation" in res:
+        doc["structure_validation"] = res["structure_validation"]
     for key in ("by_assessor", "by_group", "anova_assessor", "anova_group"):
         if key in res:
             doc[key] = res[key].reset_index().to_dict(orient="records")
@@ -114,7 +117,11 @@ def _fmt(frame: pd.DataFrame, floats: str = "{:.4g}") -> str:
 
 
 def text(res: dict) -> str:
+    from mbus_framework.analysis.crispness.validation import LOO_MAX
+
     lines = [f"mbus crispness: {res['n_samples']} samples, table {res['table']}, panel {res['panel']}, seed {res['seed']}"]
+    lines += [f"  validation: {res['validation']}" + (f" (leave-one-out up to {LOO_MAX} samples; docs/crispness.md)"
+                                                    if res["validation"] != "leave-one-out" else "")]
     lines += [f"  note: {n}" for n in res["notes"]]
     lines += ["", "Scores by assessor (Table 7.1)", _fmt(res["by_assessor"], "{:.2f}")]
     a = res["anova_assessor"].iloc[0]
@@ -125,10 +132,10 @@ def text(res: dict) -> str:
         lines += ["", f"Analysis of variance by {res['group']} (Table 7.3)", _fmt(res["anova_group"], "{:.5g}")]
     if "structures" in res:
         st = res["structures"].set_index("structure")[["layers", "neurons", "weights", "loo_mse", "loo_mse_se", "loo_r", "recommended"]]
-        lines += ["", "Network structures, leave-one-out (Fig. 7.2)", _fmt(st)]
+        lines += ["", f"Network structures, {res.get('structure_validation', res['validation'])} (Fig. 7.2)", _fmt(st)]
     ag = agreement_table(res["sets"]).set_index(["inputs", "model"])
     cols = ["n", "r", "slope", "slope_p", "intercept", "intercept_p", "rmse"]
-    lines += ["", "Leave-one-out prediction: predicted = intercept + slope x measured (Figs 7.3/7.4;",
+    lines += ["", f"Out-of-sample prediction ({res['validation']}): predicted = intercept + slope x measured (Figs 7.3/7.4;",
               "  slope_p tests slope = 1, intercept_p tests intercept = 0)", _fmt(ag[cols])]
     lines += ["", "Tests"] + [f"  {r['test']}: {r['statistic']} = {r['value']:.3f}, p = {r['p']:.3g}" for r in comparison_rows(res)]
     lines += ["", f"Sensitivities: |change in predicted score| for a {100 * res['change']:+g} % input change, mean (SD) (Table 7.4)"]

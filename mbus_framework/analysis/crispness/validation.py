@@ -6,7 +6,12 @@ network-structure comparison, sensitivities (eq. 7.2) and the linear baseline.
   validation samples itself, Section 7.2.5) and predicts the held-out one. Fold k gets the
   seed ``SeedSequence(seed).spawn(n)[k]``, so a result is reproducible and independent of
   the order in which folds run.
-* :func:`structure_comparison`: leave-one-out MSE of several hidden-layer structures
+* Above ``LOO_MAX`` samples, leave-one-out (n network fits) is replaced by seeded
+  ``KFOLD``-fold cross-validation (:func:`validation_for`, :func:`cross_validate`); the
+  validation used is named in the output. Above ``STRUCTURE_SUBSET`` samples the structures
+  are compared on a seeded random subset of that many samples (the chosen network itself is
+  validated on all of them).
+* :func:`structure_comparison`: leave-one-out (or K-fold) MSE of several hidden-layer structures
   (Fig. 7.2), and the smallest one within one standard error of the best.
 * :func:`sensitivities`: eq. 7.2 as in Table 7.4, the mean and SD over samples of
   |f(x with input j times 1.1) - f(x)|.
@@ -15,6 +20,7 @@ network-structure comparison, sensitivities (eq. 7.2) and the linear baseline.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -38,6 +44,24 @@ def ridge_baseline():
     return make_pipeline(MinMaxScaler(), RidgeCV(alphas=np.logspace(-4, 3, 29)))
 
 
+#: leave-one-out up to this many samples; K-fold cross-validation above
+LOO_MAX = 200
+#: folds of the K-fold cross-validation used above LOO_MAX
+KFOLD = 5
+#: above this many samples, the structure comparison runs on a seeded subset of this size
+STRUCTURE_SUBSET = 2000
+
+
+def validation_for(n: int, loo_max: int | None = None, folds: int | None = None) -> tuple[str, int | None]:
+    """(name, folds) of the validation used for n samples: ('leave-one-out', None) up to
+    ``loo_max`` (default ``LOO_MAX``), else ('5-fold cross-validation', 5) (``KFOLD``)."""
+    loo_max = LOO_MAX if loo_max is None else loo_max
+    folds = KFOLD if folds is None else folds
+    if n <= loo_max:
+        return "leave-one-out", None
+    return f"{folds}-fold cross-validation", folds
+
+
 def fold_seeds(seed: int | None, n: int) -> list[int]:
     """Independent 32-bit seeds of n folds from one seed."""
     return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n)]
@@ -54,21 +78,48 @@ class LooResult:
 
 def leave_one_out(estimator, X, y, seed: int | None = 0, progress=None, description: str = "leave-one-out", keep_models: bool = False) -> LooResult:
     """Leave-one-out predictions of ``estimator`` (see the module docstring)."""
+    return cross_validate(estimator, X, y, seed, progress, description, keep_models, folds=None)
+
+
+def _fit_fold(estimator, X, y, train, test, seed):
+    est = clone(estimator)
+    if seed is not None:
+        est.set_params(random_state=seed)
+    est.fit(X[train], y[train])
+    return test, est.predict(X[test]), est
+
+
+def cross_validate(estimator, X, y, seed: int | None = 0, progress=None, description: str = "leave-one-out",
+                   keep_models: bool = False, folds: int | None = None, n_jobs: int | None = None) -> LooResult:
+    """Out-of-fold predictions of ``estimator``: leave-one-out when ``folds`` is None, else
+    ``folds``-fold with the samples shuffled by ``seed``; fold k's estimator gets seed
+    ``fold_seeds(seed, n_folds)[k]``. K-fold folds run in ``n_jobs`` processes (default: one per
+    CPU, at most ``folds``); the result does not depend on it."""
+    from sklearn.model_selection import KFold
+
     X, y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
     n = len(y)
-    seeds = fold_seeds(seed, n)
+    splitter = LeaveOneOut() if folds is None else KFold(n_splits=folds, shuffle=True, random_state=fold_seeds(seed, 1)[0])
+    n_folds = n if folds is None else folds
+    seeded = "random_state" in estimator.get_params()
+    seeds = fold_seeds(seed, n_folds) if seeded else [None] * n_folds
+    if n_jobs is None:
+        n_jobs = 1 if folds is None else min(folds, os.cpu_count() or 1)
     pred = np.empty(n)
     models = [] if keep_models else None
-    seeded = "random_state" in estimator.get_params()
+    jobs = [(train, test, seeds[k]) for k, (train, test) in enumerate(splitter.split(X))]
     if progress is not None:
-        progress.start(description, total=n)
+        progress.start(description, total=n_folds)
     try:
-        for k, (train, test) in enumerate(LeaveOneOut().split(X)):
-            est = clone(estimator)
-            if seeded:
-                est.set_params(random_state=seeds[k])
-            est.fit(X[train], y[train])
-            pred[test] = est.predict(X[test])
+        if n_jobs > 1:
+            from joblib import Parallel, delayed
+
+            results = Parallel(n_jobs=n_jobs, return_as="generator")(
+                delayed(_fit_fold)(estimator, X, y, tr, te, sd) for tr, te, sd in jobs)
+        else:
+            results = (_fit_fold(estimator, X, y, tr, te, sd) for tr, te, sd in jobs)
+        for test, p, est in results:  # in fold order
+            pred[test] = p
             if models is not None:
                 models.append(est)
             if progress is not None:
@@ -85,10 +136,10 @@ def structure_label(hidden: Sequence[int]) -> str:
 
 def structure_comparison(
     X, y, structures: Sequence[Sequence[int]] = DEFAULT_STRUCTURES, base: LMNetworkRegressor | None = None,
-    seed: int | None = 0, progress=None,
+    seed: int | None = 0, progress=None, folds: int | None = None,
 ) -> tuple[pd.DataFrame, dict[str, dict]]:
-    """Leave-one-out MSE per hidden-layer structure, and each structure's learning curves
-    (training and validation MSE per epoch) from one fit on all samples.
+    """Leave-one-out (``folds`` None) or K-fold MSE per hidden-layer structure, and each
+    structure's learning curves (training and validation MSE per epoch) from one fit on all samples.
 
     Returns (table with columns structure, layers, neurons, weights, loo_mse, loo_mse_se,
     loo_r, recommended; {structure: learning curves}).
@@ -99,7 +150,7 @@ def structure_comparison(
     for i, hidden in enumerate(structures):
         est = clone(base).set_params(hidden_layer_sizes=tuple(hidden))
         label = structure_label(hidden)
-        loo = leave_one_out(est, X, y, seed, progress, f"structure {label}")
+        loo = cross_validate(est, X, y, seed, progress, f"structure {label}", folds=folds)
         se = loo.squared_errors(y)
         full = clone(est).set_params(random_state=fold_seeds(seed, 1)[0]).fit(X, y)
         curves[label] = full.learning_curves()[0]

@@ -19,7 +19,8 @@ from mbus_framework.analysis.crispness import plots
 from mbus_framework.analysis.crispness import report
 from mbus_framework.analysis.crispness.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
 from mbus_framework.analysis.crispness.validation import (
-    leave_one_out, rank, ridge_baseline, sensitivities, structure_comparison, structure_label,
+    STRUCTURE_SUBSET, cross_validate, rank, ridge_baseline, sensitivities, structure_comparison, structure_label,
+    validation_for,
 )
 from mbus_framework.analysis.crispness.model import CrispnessModel
 from mbus_framework.analysis.crispness.panel import attach_group, describe_by, join_scores, lsd_comparisons, one_way_anova, read_panel
@@ -84,12 +85,20 @@ def _default_group(panel: pd.DataFrame) -> str | None:
 
 
 def analyse_inputs(inputs, data: pd.DataFrame, network: LMNetworkRegressor, args, progress) -> dict:
-    """Leave-one-out network and ridge predictions, their agreement, and both models fitted
-    on all samples (for the sensitivities and the saved model)."""
+    """Leave-one-out (K-fold above ``LOO_MAX`` samples) network and ridge predictions, their
+    agreement, and both models fitted on all samples (for the sensitivities and the saved model)."""
     X, y = data[inputs].to_numpy(dtype=float), data["score"].to_numpy(dtype=float)
-    net_loo = leave_one_out(network, X, y, args.seed, progress, f"leave-one-out ({','.join(inputs)})").predictions
-    ridge_loo = leave_one_out(ridge_baseline(), X, y, args.seed).predictions
-    final, ridge = clone(network).fit(X, y), ridge_baseline().fit(X, y)
+    name, folds = validation_for(len(y))
+    net_loo = cross_validate(network, X, y, args.seed, progress, f"{name} ({','.join(inputs)})", folds=folds).predictions
+    ridge_loo = cross_validate(ridge_baseline(), X, y, args.seed, folds=folds).predictions
+    if progress is not None:
+        progress.start(f"final network ({','.join(inputs)})", total=1)
+    try:
+        final, ridge = clone(network).fit(X, y), ridge_baseline().fit(X, y)
+    finally:
+        if progress is not None:
+            progress.advance(1)
+            progress.stop()
     net_a, ridge_a = agreement(y, net_loo), agreement(y, ridge_loo)
     return {
         "inputs": list(inputs), "X": X, "y": y, "network_loo": net_loo, "ridge_loo": ridge_loo,
@@ -101,7 +110,7 @@ def analyse_inputs(inputs, data: pd.DataFrame, network: LMNetworkRegressor, args
 
 
 def run_crispness(args) -> int:
-    from mbus_framework.pipeline.progress import make_progress
+    from mbus_framework.pipeline.progress import make_long_progress
 
     inputs = _columns(args.inputs, "--inputs")
     compare = _columns(args.compare_inputs, "--compare-inputs") if args.compare_inputs else None
@@ -121,10 +130,12 @@ def run_crispness(args) -> int:
             raise DataError(f"{args.scores}: no {group!r} label for sample {panel.loc[panel[group].isna(), 'sample_id'].iloc[0]!r}")
     out = Path(args.out) if args.out else Path(args.table).resolve().parent / "crispness"
     out.mkdir(parents=True, exist_ok=True)
-    progress = None if args.quiet else make_progress()
+    progress = None if args.quiet else make_long_progress()
+    validation, folds = validation_for(len(data))
 
     res: dict = {"table": str(args.table), "panel": str(args.scores), "seed": args.seed, "notes": notes,
-                 "n_samples": len(data), "group": group, "network": network.get_params(), "change": args.change}
+                 "n_samples": len(data), "group": group, "network": network.get_params(), "change": args.change,
+                 "validation": validation}
     res["by_assessor"] = describe_by(panel, "assessor")
     res["anova_assessor"] = one_way_anova(panel, "assessor", args.alpha, "Assessor")
     res["lsd_assessor"] = lsd_comparisons(panel, "assessor", args.alpha)
@@ -132,8 +143,14 @@ def run_crispness(args) -> int:
         res["by_group"] = describe_by(panel, group, total=f"all samples ({len(data)})")
         res["anova_group"] = one_way_anova(panel, group, args.alpha, str(group))
     if structures:
-        res["structures"], res["curves"] = structure_comparison(
-            data[inputs].to_numpy(dtype=float), data["score"].to_numpy(dtype=float), structures, network, args.seed, progress)
+        Xs, ys = data[inputs].to_numpy(dtype=float), data["score"].to_numpy(dtype=float)
+        if len(ys) > STRUCTURE_SUBSET:  # documented: structures compared on a seeded subset
+            keep = np.sort(np.random.default_rng(args.seed).choice(len(ys), STRUCTURE_SUBSET, replace=False))
+            Xs, ys = Xs[keep], ys[keep]
+        sub_name, sub_folds = validation_for(len(ys))
+        res["structure_validation"] = sub_name + (f" on a random subset of {len(ys)} of {len(data)} samples"
+                                                  if len(ys) < len(data) else "")
+        res["structures"], res["curves"] = structure_comparison(Xs, ys, structures, network, args.seed, progress, folds=sub_folds)
     sets = [analyse_inputs(inputs, data, network, args, progress)]
     if compare:
         sets.append(analyse_inputs(compare, data, network, args, progress))
