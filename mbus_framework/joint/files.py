@@ -13,7 +13,7 @@ import yaml
 
 from mbus_framework.joint.config import split
 from mbus_framework.joint.result import JointResult
-from mbus_framework.joint.run import RecordInput, merge_nuisance, run_records
+from mbus_framework.joint.run import RecordInput, check_records, merge_nuisance, run_records
 
 
 def load_joint(config: str | Path | Mapping[str, Any], overrides: list[str] | None = None):
@@ -49,6 +49,7 @@ def run_joint_config(config: str | Path | Mapping[str, Any], overrides: list[str
     source, section, title, output, records = load_joint(config, overrides)
     built = [(label, load_components(rec, source=f"{source}: joint.records[{i}]"))
              for i, (label, rec) in enumerate(records)]
+    check_records([lab for lab, _ in built], [c for _, c in built], section.shared, section.per_record, source)
     folder = RunFolder.create(out_dir, parent=output, source=source, overwrite=overwrite)
     with folder:
         run_dir = folder.path

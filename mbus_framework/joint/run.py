@@ -52,19 +52,22 @@ def merge_nuisance(config: dict[str, Any], per_record: Sequence[str] | None) -> 
     return merge(config, {"nuisance": {n: {"estimate": True} for n in names}}) if names else config
 
 
-def check_records(records: Sequence[RecordInput], source: str) -> None:
-    """One model (name and options) for all records, no ``model.fixed``: one-line ConfigErrors."""
-    if not records:
+def check_records(labels: Sequence[str], components: Sequence[Components], shared: Sequence[str] | None,
+                  per_record: Sequence[str] | None, source: str) -> JointSpec:
+    """One model (name and options) for all records, no ``model.fixed``, a valid declaration:
+    one-line ConfigErrors; returns the declaration."""
+    if not components:
         raise ConfigError(f"{source}: a joint fit needs at least one record")
-    first = records[0].components.config.model
-    for i, rec in enumerate(records):
-        model = rec.components.config.model
+    first = components[0].config.model
+    for i, (label, c) in enumerate(zip(labels, components)):
+        model = c.config.model
         if model.name != first.name or model.options != first.options:
-            raise ConfigError(f"{source}: records[{i}] ({rec.label}): model {model.name} {model.options} differs from "
+            raise ConfigError(f"{source}: records[{i}] ({label}): model {model.name} {model.options} differs from "
                               f"records[0]'s {first.name} {first.options}; a joint fit needs one model for all records")
         if model.fixed:
-            raise ConfigError(f"{source}: records[{i}] ({rec.label}): model.fixed is not supported in a joint fit; "
+            raise ConfigError(f"{source}: records[{i}] ({label}): model.fixed is not supported in a joint fit; "
                               f"declare the property per_record or fit the records one by one")
+    return JointSpec.declare(components[0].model.property_names, shared, per_record, where=f"{source}: joint")
 
 
 def run_records(records: Sequence[RecordInput], shared: Sequence[str] | None, per_record: Sequence[str] | None,
@@ -72,9 +75,7 @@ def run_records(records: Sequence[RecordInput], shared: Sequence[str] | None, pe
     """Fit each record alone, then all jointly; returns the result document and the problem."""
     from mbus_framework.pipeline.run import estimate
 
-    check_records(records, source)
-    model0 = records[0].components.model
-    spec = JointSpec.declare(model0.property_names, shared, per_record, where=f"{source}: joint")
+    spec = check_records([r.label for r in records], [r.components for r in records], shared, per_record, source)
     singles = [estimate(rec.components, rec.measurement, rec.designed, progress) for rec in records]
     problems = [s.problem for s in singles]
     sigmas = [noise_level(s.fit.cost, s.problem.y.size, int(s.fit.free.sum())) for s in singles]
