@@ -47,14 +47,20 @@ def test_one_record_joint_equals_single():
 
 
 def test_joint_jacobian_matches_finite_differences():
-    recs = [record(0.02, gain=1.5, delay_samples=3.3, seed=2), record(0.03, gain=0.7, delay_samples=7.6, seed=3)]
-    joint = mbus.fit(recs, sample=[geometry(0.02), geometry(0.03)], per_record=["input_gain", "delay", "eta_tau"],
-                     shared=["E_sigma", "eta_sigma", "E_tau"], **FIT)
-    jp = joint.outcome.problem
+    from mbus_framework.estimation.nuisance import NuisanceSettings
+    from mbus_framework.estimation.problem import FitProblem
+    from mbus_framework.joint.problem import JointProblem
+
+    spec = JointSpec.declare(PROPS, ["E_sigma", "eta_sigma", "E_tau"], ["input_gain", "delay", "eta_tau"])
+    problems = []
+    for length, gain, delay, seed in ((0.02, 1.5, 3.3, 2), (0.03, 0.7, 7.6, 3)):
+        t, u, y = record(length, gain=gain, delay_samples=delay, seed=seed, n=600)
+        model = KelvinVoigtChain(Sample(length, DIAMETER, DENSITY), KelvinVoigtOptions(n_elements=N_ELEMENTS))
+        problems.append(FitProblem(model, t, u, y, nuisance=NuisanceSettings(estimate_gain=True, estimate_delay=True)))
+    jp = JointProblem(problems, spec, [0.02, 0.05], ["a", "b"])
     assert [s.name for s in jp.slots] == ["E_sigma", "eta_sigma", "E_tau", "eta_tau", "input_gain", "delay",
                                           "eta_tau", "input_gain", "delay"]
-    phi = np.asarray([joint.document["properties"].get(s.label, 0.0) for s in jp.slots])
-    phi = 1.01 * np.array([*phi[:3], 5.0e3, 1.4, 3.1 * DT, 5.3e3, 0.75, 7.2 * DT])  # off the optimum
+    phi = 1.01 * np.array([*(POTATO[n] for n in PROPS[:3]), 5.0e3, 1.4, 3.1 * DT, 5.3e3, 0.75, 7.2 * DT])
     w, J = jp.residuals_and_jacobian(phi)
     assert np.allclose(w, np.concatenate(jp.weighted_residuals(phi)))
     for i in range(len(phi)):
