@@ -35,16 +35,10 @@ class JointSection(BaseModel):
 
 def is_joint_file(path: str | Path) -> bool:
     """A YAML file with a top-level ``joint`` section."""
-    from mbus_framework.pipeline.config import read_yaml
+    from mbus_framework.pipeline.config import config_mapping_or_none
 
-    p = Path(path)
-    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
-        return False
-    try:
-        data = read_yaml(p)
-    except ConfigError:
-        return False
-    return isinstance(data, dict) and KEY in data
+    data = config_mapping_or_none(path)
+    return data is not None and KEY in data
 
 
 def merge(base: dict[str, Any], change: dict[str, Any]) -> dict[str, Any]:
