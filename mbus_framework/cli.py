@@ -181,6 +181,14 @@ def _main(args: argparse.Namespace) -> int:
             from mbus_framework.substitution.command import run_from_cli as run_substitution
 
             return run_substitution(args)
+        from mbus_framework.joint.config import is_joint_file
+
+        if is_joint_file(args.config):
+            from mbus_framework.joint.files import run_joint_config
+
+            joint = run_joint_config(args.config, args.overrides, args.out, overwrite=args.overwrite)
+            print(joint.run_dir if args.quiet else joint.summary())
+            return 0
         from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
 

@@ -12,6 +12,7 @@ from mbus_framework.interfaces.backend import AcquisitionContext, check_record
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.estimation.problem import Progress
+    from mbus_framework.joint.result import JointResult
     from mbus_framework.interfaces.registry import Registry
     from mbus_framework.interfaces.sample import Sample
 
@@ -92,10 +93,10 @@ def run_config(
 
 def fit(
     t: Any,
-    u: Any,
-    y: Any,
+    u: Any = None,
+    y: Any = None,
     *,
-    sample: "Mapping[str, float] | Sample",
+    sample: "Mapping[str, float] | Sample | Sequence[Mapping[str, float] | Sample]",
     model: str = "kelvin_voigt",
     model_options: Mapping[str, Any] | None = None,
     initial: Mapping[str, float] | None = None,
@@ -108,8 +109,17 @@ def fit(
     out_dir: str | Path | None = None,
     plots: bool = True,
     progress: "bool | Progress | None" = False,
-) -> Result:
+    shared: Sequence[str] | None = None,
+    per_record: Sequence[str] | None = None,
+    labels: Sequence[str] | None = None,
+) -> "Result | JointResult":
     """Fit a medium model to arrays: t [s] (uniform), input u, output y.
+
+    Joint fit: ``fit([record_a, record_b], sample=[geom_a, geom_b], shared=[...],
+    per_record=["input_gain"])`` (Records or (t, u, y) triples; ``sample`` one geometry or one
+    per record) fits the records jointly, the ``shared`` properties (default: all not per record)
+    common to all, and returns a :class:`~mbus_framework.joint.result.JointResult`
+    (:mod:`mbus_framework.joint`; ``fixed`` and ``out_dir`` are for single records).
 
     ``sample`` is the geometry, ``{"length": L [m], "diameter": D [m], "density": rho [kg/m^3]}``
     (or a :class:`~mbus_framework.plugins.Sample`); ``model`` a registered medium model with its
@@ -118,6 +128,22 @@ def fit(
     ``identifiability``). Nothing is written unless ``out_dir`` is given; then it becomes a run
     folder whose config.yaml re-fits the saved measurement.csv with ``mbus-run``.
     """
+    from mbus_framework.joint.api import fit_records, is_record_list
+
+    if is_record_list(t, u, y):
+        if fixed or out_dir is not None:
+            from mbus_framework.errors import ConfigError
+
+            raise ConfigError("fit: fixed and out_dir are for one record; a joint fit takes neither")
+        return fit_records(t, sample=sample, model=model, model_options=model_options, initial=initial, hold=hold,
+                           solver=solver, solver_options=solver_options, config=config, title=title, shared=shared,
+                           per_record=per_record, labels=labels, progress=_progress(progress))
+    if u is None or y is None:
+        raise TypeError("fit: give t, u, y arrays, or a list of records for a joint fit")
+    if shared is not None or per_record is not None:
+        from mbus_framework.errors import ConfigError
+
+        raise ConfigError("fit: shared and per_record need a list of records (a joint fit)")
     geometry = sample if isinstance(sample, Mapping) else {
         "length": sample.length, "diameter": sample.diameter, "density": sample.density}
     mapping: dict[str, Any] = {

@@ -183,6 +183,18 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def config_mapping_or_none(path: str | Path) -> dict[str, Any] | None:
+    """The YAML mapping of a ``.yaml``/``.yml`` file, or None when it is not a readable config
+    (used to recognise special config kinds before the full validation)."""
+    p = Path(path)
+    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
+        return None
+    try:
+        return read_yaml(p)
+    except ConfigError:
+        return None
+
+
 def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--set") -> dict[str, Any]:
     """Apply ``dotted.key=value`` overrides (value parsed as YAML) to a copy of ``data``."""
     import copy
