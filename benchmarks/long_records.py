@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -45,6 +46,12 @@ def _record(case: str, c, tmp: Path):
     return c.backend.acquire(AcquisitionContext(designed, c.sample, c.model, c.registry, tmp, c.source)), designed
 
 
+def _cpu() -> float:
+    """CPU seconds of this process (user + system): the machine's load does not count."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def run_case(case: str) -> dict:
     """Fit one case in this process: wall time of the estimate (fit and uncertainty), peak RSS."""
     from mbus_framework.errors import MbusError
@@ -58,9 +65,9 @@ def run_case(case: str) -> dict:
         c = load_components(str(CONFIG), overrides)
         with tempfile.TemporaryDirectory() as tmp:
             m, designed = _record(case, c, Path(tmp))
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), _cpu()
             out = estimate(c, m, designed)
-        row["fit_s"] = time.perf_counter() - t1
+        row["fit_s"], row["fit_cpu_s"] = time.perf_counter() - t1, _cpu() - c1
         fit, res = out.fit, out.result
         strategy = fit.strategy or {}
         row.update(outcome="fitted", nfev=fit.nfev, success=bool(fit.success), message=str(fit.message),
@@ -68,7 +75,8 @@ def run_case(case: str) -> dict:
                    fit_quality=res.get("fit_quality"), warnings=res.get("warnings", []))
     except MbusError as e:  # a refusal is a one-line reason
         row.update(outcome="refused", reason=str(e))
-    row["wall_s"] = time.perf_counter() - t0
+    row["wall_s"], row["cpu_s"] = time.perf_counter() - t0, _cpu()
+    row["load_average"] = os.getloadavg()[0]
     row["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2
     return row
 
@@ -92,6 +100,7 @@ def main() -> None:
             row["met"] = row["wall_s"] <= wall and row["peak_rss_gb"] <= gb
         rows.append(row)
         print(f"{case:16} {row.get('outcome'):8} wall {row.get('wall_s', float('nan')):7.1f} s  "
+              f"cpu {row.get('cpu_s', float('nan')):7.1f} s  "
               f"peak {row.get('peak_rss_gb', float('nan')):5.2f} GB  nfev {row.get('nfev', '-')}  "
               f"{row.get('accepted_because') or row.get('reason') or ''}")
     out = ROOT / "benchmarks" / "results" / "long_records.json"

@@ -95,7 +95,8 @@ class SearchClock:
 
     def note(self) -> str:
         t = self.elapsed()
-        return f"{self.evaluations} evaluations, {t:.0f} s, at most {max(self.budget - t, 0.0):.0f} s left of the budget"
+        left = max(self.budget - t, 0.0)
+        return f"{self.evaluations} evaluations; {t:.0f} of {self.budget:g} CPU s, at most {left:.0f} s left"
 
     def __call__(self) -> None:
         if self.out_of_time():
