@@ -30,12 +30,14 @@ def read_trace(path: Path) -> list[dict[str, Any]]:
 def fit_data_from_run(run_dir: Path, document: dict[str, Any]) -> FitData | None:
     """The run's FitData, or None when its config or record can no longer be used (a missing
     calibration file, a plugin that is not installed here)."""
+    from mbus_framework.pipeline.reduction import reduce_record
     from mbus_framework.pipeline.run import designed_waveform, load_components, make_problem
 
     try:
         c = load_components(run_dir / "config.yaml")
         data = np.loadtxt(run_dir / "measurement.csv", delimiter=",", skiprows=1, ndmin=2)
         m = check_record(run_dir / "measurement.csv", data[:, 0], data[:, 1], data[:, 2])
+        m, _ = reduce_record(m, c.config.estimation, str(run_dir / "config.yaml"))  # the part that was fitted
         problem = make_problem(c, c.compensator.apply(m))
         theta = np.array([document["parameters"][n] for n in problem.names], dtype=float)
         yhat = problem.predict(theta)

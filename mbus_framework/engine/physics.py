@@ -3,6 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from mbus_framework.engine.moving import moving_average
+
+#: Record length [samples] up to which the arrival detector's windows grow with the record.
+REFERENCE_SAMPLES = 6000
+
 
 def onset_index(x: np.ndarray, fraction: float = 0.1) -> int | None:
     """First index where |x| exceeds ``fraction`` of its maximum, or None for a flat record."""
@@ -27,9 +32,12 @@ def first_arrival_time(t: np.ndarray, u: np.ndarray, y: np.ndarray, fraction: fl
     if i_u is None or len(y) < 8:
         return None
     seg = y[i_u:]
-    # Noise floor from the quietest stretch right after the excitation starts.
-    env = _moving_rms(seg, max(4, len(seg) // 400))
-    head = env[: max(8, len(env) // 50)]
+    # Noise floor from the quietest stretch right after the excitation starts; smoothing width
+    # and that stretch scale with the record up to REFERENCE_SAMPLES (a longer record's first
+    # 2 % would already hold the arrival).
+    scale = min(len(seg), REFERENCE_SAMPLES)
+    env = _moving_rms(seg, max(4, scale // 400))
+    head = env[: max(8, scale // 50)]
     floor = float(np.median(head))
     peak = float(np.max(env))
     if peak <= 0 or peak < 3 * floor:
@@ -42,5 +50,4 @@ def first_arrival_time(t: np.ndarray, u: np.ndarray, y: np.ndarray, fraction: fl
 
 
 def _moving_rms(x: np.ndarray, width: int) -> np.ndarray:
-    kernel = np.ones(width) / width
-    return np.sqrt(np.convolve(x * x, kernel, mode="same"))
+    return np.sqrt(np.maximum(moving_average(x * x, width), 0.0))

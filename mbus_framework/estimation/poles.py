@@ -42,6 +42,26 @@ def _block_hankel(x: np.ndarray, rows: int, cols: int, start: int) -> np.ndarray
     return np.lib.stride_tricks.sliding_window_view(x[start:start + rows + cols - 1], cols)[:rows]
 
 
+#: Columns of the block-Hankel data matrix factorised at a time (memory O(4 s CHUNK)).
+CHUNK = 8192
+
+
+def _lq_factor(u: np.ndarray, y: np.ndarray, s: int, cols: int, chunk: int = CHUNK) -> np.ndarray:
+    """R (4s, 4s) of the QR factorisation of M^T, M = [U_f; U_p; Y_p; Y_f] (4s x cols),
+    built chunk by chunk: R = qr([R_prev; M_chunk^T]) (time O(s^2 cols), memory O(s chunk)),
+    so the record's length costs linear time and constant memory."""
+    R = np.zeros((0, 4 * s))
+    for c0 in range(0, cols, chunk):
+        c1 = min(cols, c0 + chunk)
+
+        def block(x: np.ndarray, start: int) -> np.ndarray:
+            return _block_hankel(x[c0:], s, c1 - c0, start)
+
+        Mc = np.vstack([block(u, s), block(u, 0), block(y, 0), block(y, s)])
+        R = np.linalg.qr(np.vstack([R, Mc.T]), mode="r")
+    return R
+
+
 def record_poles(u: np.ndarray, y: np.ndarray, order: int, horizon: int | None = None) -> np.ndarray:
     """Discrete poles of a PO-MOESP state-space model of ``order`` identified from (u, y).
 
@@ -59,9 +79,7 @@ def record_poles(u: np.ndarray, y: np.ndarray, order: int, horizon: int | None =
     if not (su > 0 and sy > 0 and np.isfinite(su) and np.isfinite(sy)):
         return np.empty(0, complex)
     u, y = u / su, y / sy
-    M = np.vstack([_block_hankel(u, s, cols, s), _block_hankel(u, s, cols, 0),
-                   _block_hankel(y, s, cols, 0), _block_hankel(y, s, cols, s)])
-    L = np.linalg.qr(M.T, mode="r").T
+    L = _lq_factor(u, y, s, cols).T
     L32 = L[3 * s:, s:3 * s]
     U, sv, _ = np.linalg.svd(L32, full_matrices=False)
     G = U[:, :order] * sv[:order]

@@ -24,6 +24,10 @@ from mbus_framework.engine.simulation import Hold, simulate, simulate_with_sensi
 OutputFilter = Callable[[np.ndarray, float], np.ndarray]
 
 
+class SearchTimeout(Exception):
+    """Raised by a :attr:`FitProblem.monitor` when the search's time budget has run out."""
+
+
 @dataclass
 class FitProblem:
     """Data and model for one identification.
@@ -38,6 +42,8 @@ class FitProblem:
                parameter vector is the model's followed by ``input_gain`` and ``delay``.
     noise_filter: the linear map a compensator applied to the record (its noise is then
                coloured), or None for white noise.
+    monitor:   called before every model evaluation (the strategy's time budget and progress;
+               it may raise :class:`SearchTimeout`), or None.
     """
 
     model: MediumModel
@@ -52,6 +58,7 @@ class FitProblem:
     output_filter: OutputFilter | None = None
     nuisance: NuisanceSettings = field(default_factory=NuisanceSettings)
     noise_filter: Any = None
+    monitor: Callable[[], None] | None = None
 
     def __post_init__(self):
         self.t, self.u, self.y = (np.asarray(a, dtype=float) for a in (self.t, self.u, self.y))
@@ -121,6 +128,8 @@ class FitProblem:
         return theta
 
     def predict(self, theta: np.ndarray) -> np.ndarray:
+        if self.monitor is not None:
+            self.monitor()
         model_theta, gain, delay = self.split(theta)
         if self.nuisance.active:
             yhat = delayed_prediction(self.model, model_theta, self.u, self.dt, gain, delay)
@@ -130,6 +139,8 @@ class FitProblem:
 
     def predict_with_jacobian(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Prediction (N,) and exact d yhat / d theta (N, p) for the full vector."""
+        if self.monitor is not None:
+            self.monitor()
         model_theta, gain, delay = self.split(theta)
         if self.nuisance.active:
             yhat, Jm, dgain, ddelay = delayed_prediction_with_jacobian(

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mbus_framework.engine.hold import hold_response
+from mbus_framework.engine.moving import moving_average
 
 #: Log step of the analysis grid: 3 % between lines (a time-scale resolution of 3 %).
 DEFAULT_STEP = 0.03
@@ -55,7 +56,7 @@ def excited_band(u: np.ndarray, dt: float, floor: float = 1e-2) -> tuple[float, 
     P = np.abs(np.fft.rfft(u - u.mean())) ** 2
     f = np.fft.rfftfreq(n, dt)
     width = max(1, P.size // 256)
-    Ps = np.convolve(P, np.ones(width) / width, mode="same")
+    Ps = moving_average(P, width)
     top = Ps[1:].max(initial=0.0)
     f_min, f_max = 3.0 / (n * dt), 0.4 / dt
     if not np.isfinite(top) or top <= 0:

@@ -31,6 +31,13 @@ medium model and any local solver (``local_fit``):
    (result.json warns).
 5. The best minimum is refined on the full record.
 
+The whole search, refinement included, is bounded by ``time_budget`` (CPU seconds of the
+process, so the load of other processes does not cut a search short): the budget is checked
+before every model evaluation (:class:`SearchClock`), a local fit under way when it runs out
+is abandoned, and the best minimum found so far is reported with a verdict that names the
+budget and how to raise it. On an interactive terminal the progress line shows the
+evaluations, the time spent and the time left of the budget.
+
 Everything tried is reported (:class:`SearchReport`), so result.json says what won and why.
 """
 from __future__ import annotations
@@ -57,8 +64,54 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
 )
 from mbus_framework.estimation.local import LocalResult
 from mbus_framework.estimation.poles import pole_candidates
-from mbus_framework.estimation.problem import FitProblem, Progress
+from mbus_framework.estimation.problem import FitProblem, Progress, SearchTimeout
 from mbus_framework.estimation.spectral import record_spectrum
+
+
+#: Default bound on the whole search [s] (``solver.options.strategy.time_budget``).
+BUDGET_S = 50.0
+BUDGET_KEY = "solver.options.strategy.time_budget"
+_now = time.process_time  # the search's clock: CPU time of this process, so a busy machine does not
+#                           cut a search short (tests replace it)
+
+
+class SearchClock:
+    """The search's time budget in CPU seconds of this process (other processes on a busy
+    machine do not count), checked before every model evaluation (a :attr:`FitProblem.monitor`),
+    and the live progress note (at most every 0.5 s of CPU time)."""
+
+    def __init__(self, budget: float, progress: Progress | None = None) -> None:
+        self.t0, self.budget, self.progress = _now(), budget, progress
+        self.evaluations = 0
+        self.ran_out = False
+        self._shown = self.t0
+
+    def elapsed(self) -> float:
+        return _now() - self.t0
+
+    def out_of_time(self) -> bool:
+        self.ran_out = self.ran_out or self.elapsed() > self.budget
+        return self.ran_out
+
+    def note(self) -> str:
+        t = self.elapsed()
+        left = max(self.budget - t, 0.0)
+        return f"{self.evaluations} evaluations; {t:.0f} of {self.budget:g} CPU s, at most {left:.0f} s left"
+
+    def __call__(self) -> None:
+        if self.out_of_time():
+            raise SearchTimeout(f"the time budget of {self.budget:g} s (CPU) ran out")
+        self.evaluations += 1
+        now = _now()
+        if self.progress is not None and now - self._shown > 0.5:
+            self._shown = now
+            self.progress.advance(0, self.note())
+
+    def verdict(self, starts: int) -> str:
+        """The sentence a result carries when the budget stopped the search."""
+        return (f"the time budget of {self.budget:g} s (CPU) ran out after {starts} local fit(s); "
+                f"raise {BUDGET_KEY} to search longer, or fit a decimated or windowed record "
+                f"(estimation.decimate, estimation.window)")
 
 
 class StrategyOptions(BaseModel):
@@ -112,7 +165,9 @@ class StrategyOptions(BaseModel):
     search_box: float | None = Field(
         None, gt=1, description="also confine log-scale parameters to x/÷ this factor of the initial values"
     )
-    time_budget: float = Field(300.0, gt=0, description="no new start after this many seconds of search [s]")
+    time_budget: float = Field(BUDGET_S, gt=0, description="bound on the whole search [CPU s], checked before "
+                               "every model evaluation; when it runs out the best minimum so far is reported "
+                               "as not confirmed")
 
 
 #: A local solver: (problem, start, band filter or None, max_nfev, final) -> LocalResult
@@ -138,6 +193,7 @@ class SearchReport:
     box: dict | None = None
     widened: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
+    stopped_by_budget: str | None = None
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -146,14 +202,16 @@ class SearchReport:
 class _Search:
     """State of one search: the boxed problem, the spectrum, the best minimum so far."""
 
-    def __init__(self, problem: FitProblem, local_fit: LocalFit, options: StrategyOptions, progress):
+    def __init__(self, problem: FitProblem, local_fit: LocalFit, options: StrategyOptions, progress,
+                 clock: SearchClock | None = None):
         self.options, self.local_fit, self.progress = options, local_fit, progress
+        self.clock = clock or SearchClock(options.time_budget, progress)
         self.space = gs.search_space(problem, options.material_ranges)
         lo, hi = self.space.lo.copy(), self.space.hi.copy()
         if problem.initial is not None and options.search_box:
             lo, hi = _around(problem, np.asarray(problem.initial, float), options.search_box, lo, hi)
             self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
-        self.problem = dataclasses.replace(problem, lower=lo, upper=hi)
+        self.problem = dataclasses.replace(problem, lower=lo, upper=hi, monitor=self.clock)
         self._hard = (problem.lower.astype(float), problem.upper.astype(float))
         self.names = problem.names
         self.noise = estimate_noise(problem.t, problem.u, problem.y)
@@ -246,12 +304,23 @@ class _Search:
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
                   explore: bool = False, windows: int = 0) -> bool:
         """One time-domain local fit (band stages or ``windows`` record windows, then the full
-        record); True when accepted."""
-        o, p = self.options, self.problem
+        record); True when accepted. A start the time budget stops is recorded as stopped and
+        the :class:`SearchTimeout` passed on."""
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
         if spectral_cost is not None:
             entry["spectral_cost"] = spectral_cost
+        before = self.clock.evaluations
+        try:
+            return self._fit_start(theta, origin, entry, explore, windows)
+        except SearchTimeout:
+            entry.update(stopped="time budget ran out", evaluations=self.clock.evaluations - before)
+            self.nfev += self.clock.evaluations - before  # the abandoned fit's model evaluations
+            self.report.starts.append(entry)
+            raise
+
+    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int) -> bool:
+        o, p = self.options, self.problem
         if explore:
             if o.time_scale:
                 theta, c, n = align_time_scale(p, theta, o, points=max(11, o.time_scale_points // 2))
@@ -286,7 +355,7 @@ class _Search:
         return verdict.accepted and self.best is res
 
     def judge(self, res: LocalResult) -> Verdict:
-        p, o = self.problem, self.options
+        p, o = dataclasses.replace(self.problem, monitor=None), self.options
         with np.errstate(over="ignore", invalid="ignore"):
             r = p.y - p.predict(res.theta)
         if res.cost <= self.floor:
@@ -352,9 +421,11 @@ def search(
     options: StrategyOptions,
     progress: Progress | None = None,
 ) -> tuple[LocalResult, SearchReport, int, int]:
-    """Run the strategy; returns (best refined result, report, total nfev, total njev)."""
+    """Run the strategy within ``options.time_budget``; returns (best refined result, report,
+    total nfev, total njev)."""
     t0 = time.perf_counter()
-    s = _Search(problem, local_fit, options, progress)
+    clock = SearchClock(options.time_budget, progress)
+    s = _Search(problem, local_fit, options, progress, clock)
     o = options
     seeds = s.seeds()
     silent = residual_input_test(problem.y - problem.y.mean(), problem.u, 0).p_value > o.significance
@@ -366,7 +437,46 @@ def search(
     s.report.initial_source, s.report.initial = seeds[0][0], dict(zip(s.names, map(float, seeds[0][1])))
     if progress:
         progress.start("global search (starts)", total=o.n_starts)
-    accepted = False
+    try:
+        accepted = _explore(s, o, seeds)
+    except SearchTimeout:
+        accepted = False
+    if progress:
+        progress.stop()
+    if s.best is None:  # the budget ran out before any local fit ended: the best seed as it is
+        s.best = _evaluated(s, seeds)
+        s.verdict = s.judge(s.best)
+    best, v = s.best, s.verdict
+    s.report.accepted = bool(accepted)
+    s.report.verdict = v.as_dict() if v is not None else None
+    if clock.ran_out:
+        s.report.stopped_by_budget = clock.verdict(sum("end" in e for e in s.report.starts))
+    s.report.accepted_because = v.reason if accepted and v is not None else (
+        "not confirmed: " + (f"{s.report.stopped_by_budget}; " if clock.ran_out else "")
+        + f"best of {len(s.report.starts)} starts; {v.reason if v is not None else 'no start'}")
+    final = best
+    try:
+        if not clock.ran_out:
+            final = local_fit(s.problem, best.theta, None, 10 * o.stage_max_nfev, True)
+            s.nfev, s.njev = s.nfev + final.nfev, s.njev + final.njev
+            if final.cost > best.cost:  # refinement never makes things worse
+                final = best
+            else:
+                final.trace = best.trace + _stage_trace(final, "refinement")
+            final = s.widen_if_on_edge(final)
+    except SearchTimeout:
+        s.report.stopped_by_budget = s.report.stopped_by_budget or clock.verdict(
+            sum("end" in e for e in s.report.starts))
+    for i, rec in enumerate(final.trace):
+        rec["iteration"] = i
+    s.report.wall_time_s = time.perf_counter() - t0
+    return final, s.report, s.nfev, s.njev
+
+
+def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]) -> bool:
+    """Steps 1-4 of the strategy (module docstring); True when a minimum was accepted. Raises
+    :class:`SearchTimeout` when the budget runs out during a model evaluation."""
+    out_of_time = s.clock.out_of_time
     spectral_ok = s.space.movable.any()
     # 1. the physics-based starts, fitted in the frequency domain first
     queue = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
@@ -380,16 +490,14 @@ def search(
     else:
         queue += raw
     tried = 0
-    out_of_time = lambda: time.perf_counter() - t0 > o.time_budget  # noqa: E731
     for c in queue:
         if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
         if s.try_start(c.theta, c.origin, c.cost):
-            accepted = True
-            break
+            return True
     # 2. the whole region
-    if not accepted and o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
+    if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
         found = s.candidates_from(s.scan(), o.spectral_candidates)
         for c in found:
             if tried >= o.n_starts or out_of_time():
@@ -398,40 +506,29 @@ def search(
                 continue
             tried += 1
             if s.try_start(c.theta, "scan", c.cost):
-                accepted = True
-                break
+                return True
     # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
-    if not accepted and o.global_search and o.pole_starts and spectral_ok and not out_of_time():
+    if o.global_search and o.pole_starts and spectral_ok and not out_of_time():
         for c in s.pole_candidates():
             if out_of_time():
                 break
             if s.best is not None and _near(c.theta, s.best.theta, 1e-3):
                 continue
             if s.try_start(c.theta, "record poles", windows=o.pole_windows):
-                accepted = True
-                break
+                return True
     # 4. last resort: around the best minimum
-    if not accepted and not out_of_time():
-        accepted = s.fallback(lambda: out_of_time())
-    if progress:
-        progress.stop()
-    best = s.best
-    v = s.verdict
-    s.report.accepted = bool(accepted)
-    s.report.verdict = v.as_dict() if v is not None else None
-    s.report.accepted_because = v.reason if accepted and v is not None else (
-        f"not confirmed: best of {len(s.report.starts)} starts; {v.reason if v is not None else 'no start'}")
-    final = local_fit(s.problem, best.theta, None, 10 * o.stage_max_nfev, True)
-    s.nfev, s.njev = s.nfev + final.nfev, s.njev + final.njev
-    if final.cost > best.cost:  # refinement never makes things worse
-        final = best
-    else:
-        final.trace = best.trace + _stage_trace(final, "refinement")
-    final = s.widen_if_on_edge(final)
-    for i, rec in enumerate(final.trace):
-        rec["iteration"] = i
-    s.report.wall_time_s = time.perf_counter() - t0
-    return final, s.report, s.nfev, s.njev
+    return not out_of_time() and s.fallback(out_of_time)
+
+
+def _evaluated(s: _Search, seeds: list[tuple[str, np.ndarray]]) -> LocalResult:
+    """The first seed, evaluated once (no local fit ended within the budget)."""
+    p = dataclasses.replace(s.problem, monitor=None)
+    theta = seeds[0][1]
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = p.y - p.predict(theta)
+    cost = 0.5 * float(r @ r) if np.all(np.isfinite(r)) else np.inf
+    return LocalResult(theta, cost, 1, 0, 0, "the time budget ran out before any local fit ended", 0,
+                       [{"cost": cost, "theta": theta.tolist(), "stage": "start"}])
 
 
 def _around(problem: FitProblem, theta0: np.ndarray, factor: float, lo: np.ndarray, hi: np.ndarray):

@@ -138,6 +138,24 @@ class UncertaintyConfig(_Strict):
         "this fraction of the linearised half-width")
 
 
+class EstimationConfig(_Strict):
+    """``estimation``: which part of the record is fitted (:mod:`mbus_framework.pipeline.reduction`)."""
+
+    decimate: int = Field(1, ge=1, le=1000, description="fit every q-th sample after an anti-aliasing low-pass "
+                          "(1 = the whole band); the fit sees the band below 0.4 / (q dt)")
+    window: list[float] | None = Field(None, description="fit only [start_s, stop_s) of the record [s], "
+                                               "t counted from its first sample")
+
+    @field_validator("window")
+    @classmethod
+    def _ordered(cls, value):
+        if value is not None and len(value) != 2:
+            raise ValueError(f"{value} must be two times [start_s, stop_s]")
+        if value is not None and not 0 <= value[0] < value[1]:
+            raise ValueError(f"[{value[0]:g}, {value[1]:g}] must satisfy 0 <= start_s < stop_s")
+        return value
+
+
 class OutputConfig(_Strict):
     """``output``: where and what to write."""
 
@@ -160,6 +178,7 @@ class RunConfig(_Strict):
     nuisance: NuisanceConfig = Field(default_factory=NuisanceConfig)
     identifiability: IdentifiabilityConfig = Field(default_factory=IdentifiabilityConfig)
     uncertainty: UncertaintyConfig = Field(default_factory=UncertaintyConfig)
+    estimation: EstimationConfig = Field(default_factory=EstimationConfig)
     calibration: dict[str, Any] | None = Field(
         None, description="makes the run a transducer calibration (see mbus_framework.studies.transducer_calibration)"
     )

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from mbus_framework.engine.moving import moving_average
+
 NP_TO_DB_PER_CM = 20 / np.log(10) / 100
 BAND_DB = 20.0
 
@@ -24,7 +26,7 @@ def input_band(u: np.ndarray, dt: float, band_dB: float = BAND_DB) -> tuple[floa
     U = np.abs(np.fft.rfft(u - np.mean(u)))
     f = np.fft.rfftfreq(u.size, dt)
     width = max(1, U.size // 200)
-    smooth = np.convolve(U, np.ones(width) / width, mode="same")
+    smooth = moving_average(U, width)
     smooth[0] = 0.0
     if not np.any(smooth > 0):
         return None

@@ -191,6 +191,8 @@ def identifiability_warnings(result: dict[str, Any], limits, fit: "FitResult") -
             + str((strategy.get("verdict") or {}).get("reason") or "no start left a residual consistent with the noise")
             + "; the estimates may be a local minimum (or the model does not describe the data)"
         )
+    if strategy.get("stopped_by_budget"):
+        out.append(f"the search was stopped: {strategy['stopped_by_budget']}")
     edge = at_box_edge(strategy, result["parameters"])
     if edge:
         out.append(

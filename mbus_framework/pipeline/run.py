@@ -24,6 +24,7 @@ from mbus_framework.interfaces.registry import Registry, default_registry
 from mbus_framework.pipeline import interrupts, limits
 from mbus_framework.pipeline.components import Components, build_components
 from mbus_framework.pipeline.figures import FitData
+from mbus_framework.pipeline.reduction import reduce_record
 from mbus_framework.pipeline.recorded_input import consistency_warnings, excitation_section
 from mbus_framework.pipeline.results import MEASUREMENT_WARNING, build_result
 from mbus_framework.pipeline.run_folder import RunFolder, default_name
@@ -155,6 +156,8 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     """Compensate, fit and build the result document; touches no file. Every stage is an
     interruption checkpoint (:mod:`~mbus_framework.pipeline.interrupts`); numeric failures inside
     the solver or the uncertainty analysis are one-line errors (:func:`~mbus_framework.pipeline.limits.estimation_boundary`)."""
+    recorded = m
+    m, reduction = reduce_record(m, c.config.estimation, c.source)
     with limits.plugin_failures(c.registry, c.source):
         compensated = c.compensator.apply(m)
         problem = make_problem(c, compensated)
@@ -164,12 +167,15 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     interrupts.check()
     with limits.estimation_boundary(c):  # the uncertainty analysis
         result = build_result(c, m, problem, fit, designed, compensated.meta.get("compensation"))
-    result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed, m)
+    result["excitation"] = excitation_section(c.config.excitation.name if c.config.excitation else None, designed,
+                                              recorded)
+    if reduction is not None:
+        result["reduction"] = reduction  # the window and decimation actually fitted
     if isinstance(m.meta.get("pretrigger"), dict):
         result["pretrigger"] = m.meta["pretrigger"]  # what the file backend cut and subtracted
     measured = [w for w in result.get("warnings", []) if w.startswith(MEASUREMENT_WARNING)]
     others = [w for w in result.get("warnings", []) if not w.startswith(MEASUREMENT_WARNING)]
-    result["warnings"] = measured + input_warnings(m, designed) + others
+    result["warnings"] = measured + input_warnings(recorded, designed) + others
     return RunOutcome(None, c, m, fit, result, problem, designed)
 
 
