@@ -481,7 +481,7 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
     # 1. the physics-based starts, fitted in the frequency domain first
     queue = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
     raw = [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
-    if not getattr(problem.model, "has_state_space", True):
+    if not getattr(s.problem.model, "has_state_space", True):
         # no states: the spectral stage cannot model the record's unfinished tail, so a
         # frequency-response model's own physics-based start is fitted in the time domain first
         queue += raw + (s.seed_candidates(seeds) if spectral_ok else [])
