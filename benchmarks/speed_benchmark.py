@@ -35,6 +35,11 @@ import tempfile
 import time
 from pathlib import Path
 
+# One BLAS thread, as mbus-run sets for itself: the in-process runs and the alternatives must
+# not pay threaded BLAS hand-off costs that the whole-process runs do not (set before numpy loads).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
