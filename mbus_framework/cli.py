@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from typing import Iterator, Sequence
 
 from mbus_framework import __version__
-from mbus_framework.errors import MbusError
+from mbus_framework.errors import ConfigError, MbusError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -135,9 +135,9 @@ def _special_mode(args, progress) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)  # --help and --version exit here, before any heavy import
     from mbus_framework.pipeline.interrupts import handling
 
-    args = _parser().parse_args(argv)
     with handling(), _one_line_warnings():
         return _main(args)
 
@@ -169,9 +169,7 @@ def _main(args: argparse.Namespace) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
-        from mbus_framework.campaigns.spec import is_campaign_file
-
-        if is_campaign_file(args.config):
+        if _is_campaign_file(args.config):
             from mbus_framework.campaigns.cli import run_from_cli
 
             return run_from_cli(args)
@@ -217,6 +215,23 @@ def _main(args: argparse.Namespace) -> int:
         return 2
     except Exception as exc:  # noqa: BLE001 - last resort: a bug, reported in one line
         return _internal_error(exc)
+
+
+def _is_campaign_file(path: str) -> bool:
+    """True for a YAML mapping with a top-level ``campaign:`` key (as
+    :func:`mbus_framework.campaigns.spec.is_campaign_file`, checked here so that a single run does
+    not import the campaign package and Dask)."""
+    from pathlib import Path
+
+    from mbus_framework.pipeline.config import read_yaml
+
+    p = Path(path)
+    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
+        return False
+    try:
+        return "campaign" in read_yaml(p)
+    except ConfigError:
+        return False
 
 
 def _internal_error(exc: Exception) -> int:

@@ -7,20 +7,39 @@
 
 See docs/campaigns.md (use), docs/campaign-format.md (file format) and docs/campaign-table.md.
 """
-from mbus_framework.campaigns.problems import CampaignError
-from mbus_framework.campaigns.report import GroupReport, group_report
-from mbus_framework.campaigns.runner import CampaignInterrupted, CampaignResult, run_campaign, summary_text
-from mbus_framework.campaigns.spec import Campaign, is_campaign_file, load_campaign
+from __future__ import annotations
 
-__all__ = [
-    "Campaign",
-    "CampaignError",
-    "CampaignInterrupted",
-    "CampaignResult",
-    "GroupReport",
-    "group_report",
-    "is_campaign_file",
-    "load_campaign",
-    "run_campaign",
-    "summary_text",
-]
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mbus_framework.campaigns.problems import CampaignError  # noqa: F401
+    from mbus_framework.campaigns.report import GroupReport, group_report  # noqa: F401
+    from mbus_framework.campaigns.runner import CampaignInterrupted, CampaignResult, run_campaign, summary_text  # noqa: F401
+    from mbus_framework.campaigns.spec import Campaign, is_campaign_file, load_campaign  # noqa: F401
+
+# Public name -> the module defining it. Imported on first use (PEP 562), so that asking whether a
+# file is a campaign (mbus-run does, for every config) does not load Dask and the report.
+_WHERE = {
+    "CampaignError": "problems",
+    "GroupReport": "report",
+    "group_report": "report",
+    "CampaignInterrupted": "runner",
+    "CampaignResult": "runner",
+    "run_campaign": "runner",
+    "summary_text": "runner",
+    "Campaign": "spec",
+    "is_campaign_file": "spec",
+    "load_campaign": "spec",
+}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(import_module(f"mbus_framework.campaigns.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'mbus_framework.campaigns' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *__all__])

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import qmc
 
 from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
 from mbus_framework.estimation.spectral import RecordSpectrum
@@ -132,6 +131,8 @@ def spectral_cost(problem, spectrum: RecordSpectrum, theta, space: SearchSpace) 
 
 def sobol(d: int, n: int, seed: int) -> np.ndarray:
     """n points of a scrambled Sobol design in [0, 1)^d (the first n of the next power of 2)."""
+    from scipy.stats import qmc  # here, not at the top: scipy.stats takes about 0.4 s to import
+
     return qmc.Sobol(d, scramble=True, seed=seed).random_base2(int(np.ceil(np.log2(max(n, 1)))))[:n]
 
 

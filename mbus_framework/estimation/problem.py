@@ -19,6 +19,7 @@ from pydantic import BaseModel
 
 from mbus_framework.interfaces.model import MediumModel, NoOptions, Parameter
 from mbus_framework.estimation.nuisance import DELAY, GAIN, NuisanceSettings, delayed_prediction, delayed_prediction_with_jacobian
+from mbus_framework.estimation.progress import Progress  # noqa: F401 - re-exported: plugins import it from here
 from mbus_framework.engine.simulation import Hold, simulate, simulate_with_sensitivities
 
 OutputFilter = Callable[[np.ndarray, float], np.ndarray]
@@ -237,13 +238,3 @@ class Solver(ABC):
     @abstractmethod
     def solve(self, problem: FitProblem, progress: "Progress | None" = None) -> FitResult:
         """Estimate the free parameters of ``problem``."""
-
-
-class Progress:
-    """Minimal progress sink; the CLI passes a live display, tests pass nothing."""
-
-    def start(self, description: str, total: int | None = None) -> None: ...
-
-    def advance(self, steps: int = 1, note: str = "") -> None: ...
-
-    def stop(self) -> None: ...

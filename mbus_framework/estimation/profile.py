@@ -22,7 +22,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from mbus_framework.estimation.local import lm_fit
 from mbus_framework.estimation.problem import FitProblem
@@ -45,7 +45,7 @@ class ProfileInterval:
 def threshold(cost_min: float, dof: int, level: float = 0.95) -> float:
     """Largest S_p - S_min inside the interval: s^2 F_{1,dof}(level) / 2, s^2 = 2 S_min / dof."""
     s2 = 2.0 * cost_min / max(dof, 1)
-    return 0.5 * s2 * float(stats.f.ppf(level, 1, max(dof, 1)))
+    return 0.5 * s2 * float(special.fdtri(1, max(dof, 1), level))  # F_{1,dof} quantile
 
 
 def profile_intervals(problem: FitProblem, theta: np.ndarray, cost_min: float, relative_se: dict[str, float],

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 
 @dataclass
@@ -34,7 +34,7 @@ class Uncertainty:
             return self.standard_errors / np.abs(values)
 
     def intervals(self, values: np.ndarray, level: float = 0.95) -> np.ndarray:
-        q = stats.t.ppf(0.5 + level / 2, max(self.dof, 1))
+        q = special.stdtrit(max(self.dof, 1), 0.5 + level / 2)  # Student-t quantile
         return np.column_stack([values - q * self.standard_errors, values + q * self.standard_errors])
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.interfaces.excitation import Waveform, power_spectrum
@@ -83,7 +83,7 @@ def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np
 def confidence_bound(n: int, level: float = LEVEL) -> float:
     """Half-width z / sqrt(N) of the band a white residual's correlations stay inside with
     probability ``level`` at each lag (z the standard normal quantile)."""
-    return float(stats.norm.ppf(0.5 + level / 2) / np.sqrt(n))
+    return float(special.ndtri(0.5 + level / 2) / np.sqrt(n))
 
 
 def _new(fig: "Figure | None", size: tuple[float, float]) -> "Figure":

@@ -22,7 +22,7 @@ import threading
 from contextlib import contextmanager
 from typing import Iterator
 
-from mbus_framework.estimation.problem import Progress
+from mbus_framework.estimation.progress import Progress
 
 
 class Terminated(KeyboardInterrupt):

@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import sys
 
-from mbus_framework.estimation.problem import Progress
+from mbus_framework.estimation.progress import Progress
 
 
 def interactive() -> bool:

@@ -5,7 +5,7 @@ import datetime as _dt
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from mbus_framework import __version__
 from mbus_framework.estimation.combinations import extreme_combinations
@@ -98,7 +98,7 @@ def build_result(
         cov_model = unc.covariance[np.ix_(in_model, in_model)]
         pnames, pvalues, pcov = property_covariance(model.to_properties, theta[:n_model], model_free, cov_model)
         pse = np.sqrt(np.clip(np.diag(pcov), 0, None))
-        qfac = float(stats.t.ppf(0.975, unc.dof))  # the same Student-t quantile as the parameters' CIs
+        qfac = float(special.stdtrit(unc.dof, 0.975))  # the same Student-t quantile as the parameters' CIs
         dispersion_cov = (cov_model, model_free)
         result["uncertainty"] = {
             "method": (

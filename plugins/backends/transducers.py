@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scipy import signal as sps
 
 from mbus_framework.interfaces.model import StateSpace
 
@@ -106,6 +105,8 @@ class BandPass:
 
     def _normalised_zpk(self):
         """Zeros, poles and gain of H(s / w_c), w_c = 2 pi f_c (poles of order 1)."""
+        from scipy import signal as sps  # on use: scipy.signal imports scipy.stats (about 0.5 s)
+
         f1, f2 = self.edges
         fc = self.centre_frequency
         z, p, k = sps.butter(self.order, [f1 / fc, f2 / fc], btype="bandpass", analog=True, output="zpk")
@@ -114,12 +115,16 @@ class BandPass:
 
     def response(self, f: np.ndarray) -> np.ndarray:
         """H(i 2 pi f) at frequencies f [Hz] (complex, dimensionless times the gain unit)."""
+        from scipy import signal as sps
+
         z, p, k = self._normalised_zpk()
         _, h = sps.freqs_zpk(z, p, k, np.asarray(f, dtype=float) / self.centre_frequency)
         return h
 
     def state_space(self) -> StateSpace:
         """Continuous (A, B, C, D) with A = w_c A_n, B = w_c B_n (A_n entries of order 1)."""
+        from scipy import signal as sps
+
         z, p, k = self._normalised_zpk()
         A, B, C, D = sps.zpk2ss(z, p, k)
         wc = 2 * np.pi * self.centre_frequency

@@ -39,7 +39,6 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy import fft as sfft
-from scipy.ndimage import uniform_filter1d
 
 from mbus_framework.compensation.calibration_file import Calibration, load_calibration
 from mbus_framework.compensation.filters import (
@@ -190,6 +189,8 @@ class TransferFunctionCompensator(Compensator):
             )
         N0 = n * sigma**2  # E|E_k|^2 of white noise, n samples zero-padded
         Y = sfft.rfft(y, nfft)
+        from scipy.ndimage import uniform_filter1d  # on use: scipy.ndimage is slow to import
+
         S_y = uniform_filter1d(np.abs(Y) ** 2, size=15, mode="nearest")
         inband = (f >= self.band[0]) & (f <= self.band[1])
         if o.regularisation == "wiener":

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field, model_validator
-from scipy.signal import max_len_seq
 
 from mbus_framework.interfaces.excitation import DesignedExcitation, ExcitationOptions, record_length
 from mbus_framework.interfaces.hookspecs import ExcitationSpec, hookimpl
@@ -63,6 +62,8 @@ class PrbsOptions(ExcitationOptions):
 
 def mls_bits(order: int) -> np.ndarray:
     """One period of a maximal-length sequence of 0/1 bits (2^order - 1 long)."""
+    from scipy.signal import max_len_seq  # on use: scipy.signal imports scipy.stats (about 0.5 s)
+
     return max_len_seq(order)[0].astype(np.int8)
 
 

@@ -40,7 +40,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy import stats
+from scipy import special
 from scipy.optimize import least_squares
 
 from mbus_framework.engine.frequency import response, response_with_jacobian
@@ -182,7 +182,7 @@ class _FdLines:
         if not self.known_noise or dof <= 0:
             return None, dof, None
         chi2 = 2.0 * cost
-        return float(chi2), int(dof), float(stats.chi2.sf(chi2, dof))
+        return float(chi2), int(dof), float(special.chdtrc(dof, chi2))
 
 
 def _coords(problem, space):

@@ -1,0 +1,108 @@
+"""Imports follow use (issue 24): a single run loads neither the campaign machinery (Dask) nor the
+analyses' libraries (scikit-learn, statsmodels, pandas); matplotlib only when it plots;
+``mbus-run --help`` loads nothing numerical and ``--list-plugins`` no plugin's run-time
+dependencies. (scipy.stats is still loaded by any run, through scipy.signal: Welch's spectrum
+of the input, the PRBS and the transducer filters; mbus itself uses scipy.special.)
+
+Each check runs a real command in a fresh interpreter and reads its ``sys.modules``.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+POTATO = ROOT / "configs" / "potato.yaml"
+
+# Never in a single run: campaigns, Dask, the analyses' libraries.
+NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
+# --help and --version: nothing numerical at all.
+HEAVY = (*NEVER, "scipy.stats", "numpy", "scipy", "matplotlib", "pydantic", "mbus_framework.estimation.problem")
+# --list-plugins imports each plugin module (their classes carry the summaries), but not what a
+# plugin needs only when it runs: plotting, scipy.signal, scipy.ndimage, CasADi.
+PLUGIN_LIST = (*NEVER, "scipy.stats", "matplotlib", "scipy.signal", "scipy.ndimage", "casadi")
+
+_PROBE = """
+import json, sys
+from mbus_framework.cli import main
+try:
+    status = main(sys.argv[1:])
+except SystemExit as exc:
+    status = exc.code
+print("\\n@@MODULES@@" + json.dumps([status, sorted(sys.modules)]))
+"""
+
+
+def _modules(args: list[str], code: str = _PROBE) -> tuple[int, set[str]]:
+    done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT,
+                          timeout=300)
+    assert "@@MODULES@@" in done.stdout, done.stderr[-2000:]
+    status, names = json.loads(done.stdout.rpartition("@@MODULES@@")[2])
+    return status, set(names)
+
+
+def _loaded(modules: set[str], packages: tuple[str, ...]) -> list[str]:
+    return sorted(m for m in modules if any(m == p or m.startswith(p + ".") for p in packages))
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_imports_nothing_heavy(flag):
+    status, modules = _modules([flag])
+    assert status == 0
+    assert _loaded(modules, HEAVY) == []
+
+
+def test_plugin_list_imports_no_plugin_runtime_dependencies():
+    status, modules = _modules(["--list-plugins"])
+    assert status == 0
+    assert "mbus_plugins.solvers.scipy_lm" in modules  # it did look at the plugins
+    assert _loaded(modules, PLUGIN_LIST) == []
+
+
+def test_single_run_with_plots_imports_only_what_it_uses(tmp_path):
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"])
+    assert status == 0
+    assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
+    assert _loaded(modules, NEVER) == []
+    assert "matplotlib.figure" in modules  # it did plot, through the Agg canvas ...
+    assert "matplotlib.pyplot" not in modules  # ... without pyplot's global state
+
+
+def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--no-plots"])
+    assert status == 0 and (tmp_path / "run" / "result.json").is_file()
+    assert _loaded(modules, (*NEVER, "matplotlib")) == []
+
+
+def test_api_fit_imports_only_what_it_uses(tmp_path):
+    status, _ = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--no-plots"])
+    assert status == 0
+    code = f"""
+import json, sys
+import numpy as np
+import mbus_framework as mbus
+t, u, y = np.loadtxt({str(tmp_path / "run" / "measurement.csv")!r}, delimiter=",", skiprows=1, unpack=True)[:3]
+result = mbus.fit(t, u, y, sample={{"length": 0.03, "diameter": 0.0254, "density": 1080.0}}, plots=False)
+print("\\n@@MODULES@@" + json.dumps([int(not result.success), sorted(sys.modules)]))
+"""
+    status, modules = _modules([], code)
+    assert status == 0
+    assert _loaded(modules, (*NEVER, "matplotlib")) == []
+
+
+def test_campaign_files_are_still_recognised(tmp_path):
+    """The command line's own check agrees with the campaign package's."""
+    from mbus_framework.campaigns.spec import is_campaign_file
+    from mbus_framework.cli import _is_campaign_file
+
+    campaign = tmp_path / "c.yaml"
+    campaign.write_text("campaign:\n  base: base.yaml\n")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("campaign: [\n")
+    for path in (campaign, bad, POTATO, tmp_path / "missing.yaml", ROOT / "pyproject.toml"):
+        assert _is_campaign_file(str(path)) == is_campaign_file(path), path
+    assert _is_campaign_file(str(campaign))
