@@ -41,15 +41,9 @@ class SubstitutionConfig:
 
 
 def is_substitution_file(path: str | Path) -> bool:
-    from mbus_framework.pipeline.config import read_yaml
+    from mbus_framework.pipeline.config import config_mapping_or_none
 
-    p = Path(path)
-    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
-        return False
-    try:
-        data = read_yaml(p)
-    except ConfigError:
-        return False
+    data = config_mapping_or_none(path)
     return isinstance(data, dict) and data.get(KEY) == KIND
 
 
