@@ -158,3 +158,39 @@ def test_registered_as_prbs():
 
     reg = Registry.from_manager(new_plugin_manager())
     assert reg.get("excitation", "prbs").implementation is Prbs
+
+
+@pytest.mark.parametrize("order", range(2, 17))
+def test_own_shift_register_gives_scipys_maximal_length_sequence(order):
+    from scipy.signal import max_len_seq
+
+    from mbus_plugins.excitations.prbs import mls_bits
+
+    np.testing.assert_array_equal(mls_bits(order), max_len_seq(order)[0])
+
+
+@pytest.mark.parametrize("n", [100, 511, 5000, 5111])
+def test_input_spectrum_is_scipys_welch(n):
+    from scipy.signal import welch
+
+    from mbus_framework.pipeline.recorded_input import welch_spectrum
+
+    u = np.random.default_rng(n).normal(size=n) + 2.0
+    got = welch_spectrum(u, 4e-8)
+    f, p = welch(u - u.mean(), 1 / 4e-8, nperseg=int(min(n, max(64, n // 8))))
+    np.testing.assert_allclose(got.f, f)
+    np.testing.assert_allclose(got.power, p, rtol=1e-10)
+
+
+@pytest.mark.parametrize("n, nperseg", [(1000, 256), (5111, 1277), (300, 300)])
+def test_cross_spectral_density_is_scipys_csd(n, nperseg):
+    from scipy.signal import csd
+
+    from mbus_framework.engine.welch import cross_spectral_density
+
+    rng = np.random.default_rng(n)
+    x, y = rng.normal(size=n) + 1.0, rng.normal(size=n) - 0.5
+    f_ref, P_ref = csd(x, y, 1 / 4e-8, nperseg=nperseg)
+    f, P = cross_spectral_density(x, y, 4e-8, nperseg)
+    np.testing.assert_allclose(f, f_ref)
+    np.testing.assert_allclose(P, P_ref, rtol=1e-10, atol=1e-12 * np.max(np.abs(P_ref)))

@@ -71,15 +71,14 @@ def transfer_function_estimate(u, y, dt: float, nperseg: int | None = None) -> T
     Segments must outlast the impulse response of the medium (lightly damped chains ring
     for hundreds of samples); the default is a quarter of the record.
     """
-    from scipy import signal
+    from mbus_framework.engine.welch import cross_spectral_density, power_spectral_density
 
     u = np.asarray(u, dtype=float)
     y = np.asarray(y, dtype=float)
     nperseg = int(nperseg or min(len(u), max(256, len(u) // 4)))
-    fs = 1.0 / dt
-    f, Puu = signal.welch(u, fs, nperseg=nperseg)
-    _, Pyy = signal.welch(y, fs, nperseg=nperseg)
-    _, Puy = signal.csd(u, y, fs, nperseg=nperseg)
+    f, Puu = power_spectral_density(u, dt, nperseg)
+    _, Pyy = power_spectral_density(y, dt, nperseg)
+    _, Puy = cross_spectral_density(u, y, dt, nperseg)
     with np.errstate(divide="ignore", invalid="ignore"):
         H = Puy / Puu
         coh = np.abs(Puy) ** 2 / (Puu * Pyy)

@@ -12,6 +12,12 @@ with sigma_r from record r's own fit. :mod:`~mbus_framework.joint.spec` declares
 :mod:`~mbus_framework.joint.estimate` fits and tests agreement, :mod:`~mbus_framework.joint.result`
 reports, :mod:`~mbus_framework.joint.run` reads a joint config and runs it.
 """
-from mbus_framework.joint.spec import JointSpec
-
 __all__ = ["JointSpec"]
+
+
+def __getattr__(name: str):  # PEP 562: recognising a joint config must not import the estimator
+    if name == "JointSpec":
+        from mbus_framework.joint.spec import JointSpec
+
+        return JointSpec
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -28,13 +28,12 @@ BAND_RATIO = 1.5
 
 
 def welch_spectrum(u: np.ndarray, dt: float) -> Spectrum:
-    """Smoothed one-sided power density (Welch, Hann, segments of N/8 >= 64 samples)."""
-    from scipy import signal
+    """Smoothed one-sided power density [unit^2/Hz]: Welch with segments of N/8 >= 64 samples
+    (:mod:`mbus_framework.engine.welch`)."""
+    from mbus_framework.engine.welch import power_spectral_density
 
     u = np.asarray(u, dtype=float)
-    nperseg = int(min(u.size, max(64, u.size // 8)))
-    f, p = signal.welch(u - u.mean(), 1.0 / dt, nperseg=nperseg)
-    return Spectrum(f, p)
+    return Spectrum(*power_spectral_density(u - u.mean(), dt, int(min(u.size, max(64, u.size // 8)))))
 
 
 def power_quantile(u: np.ndarray, dt: float, q: float) -> float:

@@ -60,11 +60,30 @@ class PrbsOptions(ExcitationOptions):
         return self
 
 
-def mls_bits(order: int) -> np.ndarray:
-    """One period of a maximal-length sequence of 0/1 bits (2^order - 1 long)."""
-    from scipy.signal import max_len_seq  # on use: scipy.signal imports scipy.stats (about 0.5 s)
+#: Feedback taps of the Fibonacci shift register per order (the first listing of
+#: newwaveinstruments.com's m-sequence tables, the same as scipy.signal.max_len_seq's).
+MLS_TAPS = {2: (1,), 3: (2,), 4: (3,), 5: (3,), 6: (5,), 7: (6,), 8: (7, 6, 1), 9: (5,), 10: (7,), 11: (9,),
+            12: (11, 10, 4), 13: (12, 11, 8), 14: (13, 12, 2), 15: (14,), 16: (15, 13, 4)}
 
-    return max_len_seq(order)[0].astype(np.int8)
+
+def mls_bits(order: int) -> np.ndarray:
+    """One period of a maximal-length sequence of 0/1 bits (2^order - 1 long), starting from
+    the all-ones register: s[n + m] = s[n] xor (xor over taps t of s[n + t]), s[0..m-1] = 1
+    (m = order). Orders above 16 come from scipy.signal.max_len_seq (same sequence)."""
+    if order not in MLS_TAPS:
+        from scipy.signal import max_len_seq  # imports scipy.stats (about 0.5 s): only for long sequences
+
+        return max_len_seq(order)[0].astype(np.int8)
+    n = (1 << order) - 1
+    s = bytearray(n + order)
+    s[:order] = b"\x01" * order
+    taps = MLS_TAPS[order]
+    for i in range(n):
+        bit = s[i]
+        for t in taps:
+            bit ^= s[i + t]
+        s[i + order] = bit
+    return np.frombuffer(bytes(s[:n]), dtype=np.int8).copy()
 
 
 class Prbs(DesignedExcitation):
