@@ -4,6 +4,11 @@ independently of the campaign code (engine + PRBS + numpy noise)."""
 from __future__ import annotations
 
 import csv
+import os
+import socket
+import subprocess
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -79,3 +84,41 @@ def simulate_record(path: Path, truth: dict[str, float], seed: int, n_samples: i
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, np.column_stack([wave.t, wave.u, y]), delimiter=",", header="t,u,y", comments="", fmt="%.17g")
     return path
+
+
+# -- Dask processes started as a user starts them (``dask scheduler``, ``dask worker``) ---------
+SCHEDULER = [sys.executable, "-m", "distributed.cli.dask_scheduler"]  # `dask scheduler` of this Python
+WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
+ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def processes(*commands, cwd=None, logs: Path):
+    """Start each command (list of argv) as its own process; stop them all on exit."""
+    logs.mkdir(parents=True, exist_ok=True)
+    procs, files = [], []
+    try:
+        for i, cmd in enumerate(commands):
+            files.append(open(logs / f"{i}.log", "w"))
+            procs.append(subprocess.Popen(cmd, stdout=files[-1], stderr=subprocess.STDOUT, env=ENV, cwd=cwd))
+        yield procs
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        for f in files:
+            f.close()
+
+
+def scheduler_cmd(port: int) -> list[str]:
+    return [*SCHEDULER, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -18,7 +17,8 @@ import pandas as pd
 import psutil
 import pytest
 
-from campaign_helpers import BASE, draw_truths, simulate_record, truth_columns, write_campaign
+from campaign_helpers import (BASE, WORKER, draw_truths, free_port, processes, scheduler_cmd, simulate_record,
+                              truth_columns, write_campaign)
 from mbus_framework.campaigns import run_campaign
 from mbus_framework.campaigns.executor import dask_client
 from mbus_framework.campaigns.worker import MARKER
@@ -253,25 +253,14 @@ def test_ctrl_c_half_way_then_a_rerun_fits_only_the_missing_samples(tmp_path, cl
     assert len(result.table) == 10 and result.failed == []
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_a_campaign_runs_on_a_scheduler_started_elsewhere(tmp_path):
     from distributed import Client
 
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
-    logs = [open(tmp_path / name, "w") for name in ("scheduler.log", "worker.log")]
-    scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                                 stdout=logs[0], stderr=subprocess.STDOUT, env=env)
-    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-                               "--local-directory", str(tmp_path / "dask-worker")],
-                              stdout=logs[1], stderr=subprocess.STDOUT, env=env)
-    try:
+    worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+              "--local-directory", str(tmp_path / "dask-worker")]
+    with processes(scheduler_cmd(port), logs=tmp_path / "logs"), processes(worker, logs=tmp_path / "wlogs"):
         with Client(address, timeout=60) as c:
             c.wait_for_workers(1, timeout=120)
             worker_pids = set(c.run(os.getpid).values())
@@ -287,16 +276,6 @@ def test_a_campaign_runs_on_a_scheduler_started_elsewhere(tmp_path):
         assert meta["cluster"]["scheduler"] == address
         with Client(address, timeout=60) as c:  # the cluster is left as it was
             assert set(c.run(os.getpid).values()) == worker_pids
-    finally:
-        for proc in (worker, scheduler):
-            proc.terminate()
-        for proc in (worker, scheduler):
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-        for log in logs:
-            log.close()
 
 
 def test_an_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch):
@@ -305,7 +284,7 @@ def test_an_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch):
 
     monkeypatch.setattr(executor, "CONNECT_TIMEOUT_S", 1)
     path = write_campaign(tmp_path, [{"sample_id": "a", "cultivar": "x"}])
-    address = f"tcp://127.0.0.1:{_free_port()}"
+    address = f"tcp://127.0.0.1:{free_port()}"
     with pytest.raises(ClusterError, match=f"cannot connect to the Dask scheduler at {address}"):
         run_campaign(path, tmp_path / "out", scheduler=address)
 

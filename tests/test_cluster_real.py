@@ -14,7 +14,6 @@ import socket
 import subprocess
 import sys
 import time
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -22,7 +21,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from campaign_helpers import BASE, draw_truths, simulate_record, write_campaign
+from campaign_helpers import (BASE, ENV, WORKER, draw_truths, free_port, processes, scheduler_cmd,
+                              simulate_record, write_campaign)
 from mbus_framework.campaigns import run_campaign
 from mbus_framework.campaigns.attempt import ATTEMPT_FILE, CampaignLock
 from mbus_framework.campaigns.cluster import ClusterError, insecure_warning
@@ -32,43 +32,6 @@ from mbus_framework.cli import main
 from mbus_framework.errors import RunFolderError
 
 PROPS = ["E_sigma", "eta_sigma", "E_tau", "eta_tau"]
-SCHEDULER = [sys.executable, "-m", "distributed.cli.dask_scheduler"]  # `dask scheduler` of this Python
-WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
-ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@contextmanager
-def processes(*commands, cwd=None, logs: Path):
-    """Start each command (list of argv) as its own process; stop them all on exit."""
-    logs.mkdir(parents=True, exist_ok=True)
-    procs, files = [], []
-    try:
-        for i, cmd in enumerate(commands):
-            files.append(open(logs / f"{i}.log", "w"))
-            procs.append(subprocess.Popen(cmd, stdout=files[-1], stderr=subprocess.STDOUT, env=ENV, cwd=cwd))
-        yield procs
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-        for f in files:
-            f.close()
-
-
-def scheduler_cmd(port: int) -> list[str]:
-    return [*SCHEDULER, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]
-
-
 def wait_listening(port: int) -> None:
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
@@ -89,7 +52,7 @@ def cluster(tmp_path_factory):
     for name in ("rec/base.csv", "rec/b.csv", "cal/wave.csv"):
         (cwd / name).parent.mkdir(parents=True, exist_ok=True)
         (cwd / name).write_text("t,u,y\n0,0,0\n1e-7,1,decoy\n")  # unreadable: any read fails the row
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
               "--local-directory", str(root / "dask-worker")]
@@ -149,7 +112,7 @@ def _one_error_line(capsys) -> str:
 
 @pytest.mark.slow
 def test_a_scheduler_without_workers_is_a_one_line_error(tmp_path, capsys):
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     path = write_campaign(tmp_path, [{"sample_id": "a", "cultivar": "x"}])
     with processes(scheduler_cmd(port), logs=tmp_path / "logs"):
@@ -173,7 +136,7 @@ main()
 
 @pytest.mark.slow
 def test_a_worker_without_mbus_is_a_one_line_error(tmp_path, capsys):
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     path = write_campaign(tmp_path, [{"sample_id": "a", "cultivar": "x"}])
     worker = [sys.executable, "-c", BLOCKED_WORKER, address, "--no-nanny", "--nthreads", "1", "--no-dashboard",
@@ -190,7 +153,7 @@ def test_a_worker_without_mbus_is_a_one_line_error(tmp_path, capsys):
 
 def test_an_unreachable_scheduler_fails_at_once(tmp_path, capsys):
     path = write_campaign(tmp_path, [{"sample_id": "a", "cultivar": "x"}])
-    address = f"tcp://127.0.0.1:{_free_port()}"  # nothing listens: connection refused
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens: connection refused
     with pytest.raises(ClusterError, match=f"cannot connect to the Dask scheduler at {address}: Connection refused"):
         run_campaign(path, tmp_path / "out", scheduler=address, timeout=600)  # refused: no wait for the timeout
     assert json.loads((tmp_path / "out" / "campaign.json").read_text())["status"] == "failed"
@@ -299,7 +262,7 @@ def test_a_campaign_runs_on_a_tls_secured_cluster(tmp_path, monkeypatch):
 
     cert, key = self_signed(tmp_path / "certs")
     tls = ["--tls-ca-file", str(cert), "--tls-cert", str(cert), "--tls-key", str(key)]
-    port = _free_port()
+    port = free_port()
     address = f"tls://127.0.0.1:{port}"
     worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", *tls,
               "--local-directory", str(tmp_path / "dask-worker")]

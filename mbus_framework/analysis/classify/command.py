@@ -24,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"and all together (default: {' '.join(PROPERTIES)}, the seven columns of Table 4.4)")
     parser.add_argument("--sets", nargs="+", metavar="A,B",
                         help="explicit property sets instead, each comma-separated (e.g. E_sigma,eta_sigma E_tau)")
-    parser.add_argument("--transform", choices=("log", "none"), default="log",
-                        help="log10 the properties first (default: log; they are positive and span decades)")
+    parser.add_argument("--transform", choices=("none", "log"), default="none",
+                        help="none (default: the properties as estimated, as the dissertation's SPSS analysis of "
+                             "Tables 4.4-4.5) or log (log10 first: positive values spanning decades)")
     parser.add_argument("--no-standardize", dest="standardize", action="store_false",
                         help="do not scale each feature to unit variance (k-means depends on it; LDA does not)")
     parser.add_argument("--restarts", type=int, default=20, help="k-means seeded restarts (default 20)")

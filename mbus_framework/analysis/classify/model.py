@@ -15,10 +15,11 @@ seven columns of Table 4.4, or sets the user names), two methods:
   Priors are equal (SPSS's default), so a left-out sample's group is not penalised for
   being one sample smaller.
 
-Features are log-transformed (default: the properties are positive, span decades and scatter
-in proportion to their size, which suits LDA's common-covariance assumption) and standardised
-(default: k-means distances would otherwise be dominated by the largest property; LDA does not
-depend on it). Both are explicit options.
+Features are the properties as estimated (default, the dissertation's analysis: on the shipped
+tissues campaign LDA leave-one-out with all four properties classifies 93.3 %, Table 4.5), or
+log-transformed (``log=True``: they are positive and scatter in proportion to their size), and
+standardised (default: k-means distances would otherwise be dominated by the largest property;
+LDA does not depend on it). Both are explicit options.
 
 The letters of Tables 4.4/4.5: group j's letter is the j-th letter; each group is given the
 letters of the groups its samples were assigned to, so groups sharing a letter are not
@@ -190,7 +191,7 @@ def _run(method: str, X: np.ndarray, labels: np.ndarray, k: int, restarts: int, 
     return np.asarray(predicted, dtype=int), notes, validation
 
 
-def classify(df, by: str, sets: Sequence[Sequence[str]] | None = None, *, log: bool = True,
+def classify(df, by: str, sets: Sequence[Sequence[str]] | None = None, *, log: bool = False,
              standardize: bool = True, restarts: int = 20, seed: int = 0, source: str = "<table>",
              progress=None) -> Classification:
     """Run k-means and LDA leave-one-out on each property set; see the module docstring.
