@@ -6,6 +6,7 @@ Run on demand (not part of the test suite):
 
     python benchmarks/campaign_replicates.py [--samples 8] [--replicates 3] [--elements 6]
         [--n-samples 2500] [--workers 2] [--seed 1] [--out benchmarks/results/campaign_replicates.json]
+        [--figure docs/img/campaign_replicates.png] [--plot-only]
 
 The first ``--samples`` slices of configs/campaigns/potatoes/samples.csv (their true
 properties, configs/potato.yaml's rig: PRBS at 25 MS/s, 3 % noise) are each measured
@@ -83,6 +84,35 @@ def errors(table, truths) -> dict[str, dict[str, float]]:
     return out
 
 
+def plot(report: dict, path: Path) -> Path:
+    """Per sample and property: relative error of the joint and of the averaged-record fit (log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    samples = list(report["samples"])
+    fig, axes = plt.subplots(1, len(PROPS), figsize=(13, 3.4), sharey=True)
+    x = np.arange(len(samples))
+    for ax, p in zip(axes, PROPS):
+        for k, (mode, colour) in enumerate((("joint", "C0"), ("average", "C3"))):
+            v = [100 * report["samples"][s][mode][p] for s in samples]
+            ax.bar(x + (k - 0.5) * 0.4, v, 0.4, color=colour, label=f"{mode} fit")
+        ax.set_yscale("log")
+        ax.set_title(p)
+        ax.set_xticks(x, samples, rotation=90, fontsize=7)
+    axes[0].set_ylabel("|estimate - truth| / truth [%]")
+    axes[0].legend(fontsize=8)
+    s = report["settings"]
+    fig.suptitle(f"potato slices, {s['replicates']} replicates each (gain 0.5-2x, delay 0-10 samples): "
+                 f"joint vs averaged-record fit", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=8)
@@ -92,9 +122,15 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "campaign_replicates.json")
+    ap.add_argument("--figure", type=Path, default=ROOT / "docs" / "img" / "campaign_replicates.png")
+    ap.add_argument("--plot-only", action="store_true", help="redraw the figure from --out, fit nothing")
     args = ap.parse_args(argv)
+    if args.plot_only:
+        print(plot(json.loads(args.out.read_text(encoding="utf-8")), args.figure))
+        return 0
     rows, truths = sheet_rows(args.samples, args.replicates, args.seed)
-    report = {"settings": vars(args) | {"out": str(args.out)}, "replicates": rows, "runs": {}}
+    settings = {k: v for k, v in vars(args).items() if k not in ("out", "figure", "plot_only")}
+    report = {"settings": settings, "replicates": rows, "runs": {}}
     tables = {}
     with tempfile.TemporaryDirectory() as tmp:
         for mode in ("joint", "average"):
@@ -123,6 +159,7 @@ def main(argv=None) -> int:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2, default=float))
+    plot(report, args.figure)
     print(json.dumps(report["summary"], indent=2))
     for s, v in per_sample.items():
         print(f"{s}: joint {100 * v['joint_rms_rel_error']:.2f} %  average {100 * v['average_rms_rel_error']:.2f} %  "
