@@ -174,3 +174,19 @@ def test_auto_averages_replicates_of_one_gain_and_delay(tmp_path, client):
     doc = json.loads((result.out_dir / "runs" / "a" / "result.json").read_text())
     assert doc["replicates"]["averaged"] == ["r1", "r2"] and doc["replicates"]["mode"] == "averaged"
     assert "0 sample(s) fitted jointly" in summary_text(result) and "2 averaged" in summary_text(result)
+
+
+def test_joint_fits_two_thicknesses_of_one_sample(tmp_path, client):
+    """``replicates: joint`` on replicates of equal gain: still joint (no choice), each its own length."""
+    truth = draw_truths(1, seed=12)[0]
+    rows = rig_rows([truth], [(1.0, 0), (1.0, 0)])
+    rows[0]["sample.length"], rows[1]["sample.length"] = 0.02, 0.03
+    path = write_campaign(tmp_path, rows, groups=(), replicates="joint")
+    result = run_campaign(path, tmp_path / "out", client=client, progress=False)
+    row = result.table.iloc[0]
+    assert row["replicates"] == "joint" and row["replicates_reason"] == "campaign.replicates: joint"
+    for p in PROPS:
+        assert abs(row[p] - truth[p]) <= 4 * row[f"{p}_se"], p
+    reps = pd.read_csv(result.out_dir / "replicates.csv")
+    assert list(reps["sample_length"]) == [0.02, 0.03]
+    assert "a: joint (campaign.replicates: joint)" in summary_text(result)

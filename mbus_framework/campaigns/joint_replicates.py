@@ -51,7 +51,7 @@ def joint_result(configs: Sequence[dict[str, Any]], records: Sequence[Measuremen
 
 
 def replicate_rows(table, out_dir: str | Path) -> list[dict[str, Any]]:
-    """Per replicate of each jointly fitted sample of ``table``: sample_id, replicate, the joint
+    """Per replicate of each jointly fitted sample of ``table``: sample_id, replicate, its length [m], the joint
     fit's input gain and delay (with SE, truth when simulated), nrmse and verdict, and the
     replicate's own single-record properties (with SE); read from the run folders' result.json."""
     rows = []
@@ -63,7 +63,8 @@ def replicate_rows(table, out_dir: str | Path) -> list[dict[str, Any]]:
         except (OSError, ValueError):
             continue
         for rec in doc.get("records", []):
-            row: dict[str, Any] = {"sample_id": r["sample_id"], "replicate": rec["label"]}
+            row: dict[str, Any] = {"sample_id": r["sample_id"], "replicate": rec["label"],
+                                   "sample_length": rec["sample"]["length"]}
             for name in PER_REPLICATE:
                 row[f"joint_{name}"] = rec["per_record"].get(name, math.nan)
                 row[f"joint_{name}_se"] = rec["per_record_standard_errors"].get(name, math.nan)

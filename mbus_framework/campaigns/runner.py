@@ -276,6 +276,12 @@ def summary_text(result: CampaignResult) -> str:
             lines.append(f"    {Path(run).name}: {errors[run]}")
         if len(failed) > 10:
             lines.append(f"    ... and {len(failed) - 10} more (column 'error' of properties.csv)")
+    if c.spec.replicates in ("auto", "joint") and result.table is not None and "replicates_reason" in result.table:
+        chosen = _choices(result.table)
+        for sample, how_chosen in list(chosen.items())[:10]:
+            lines.append(f"    {sample}: {how_chosen}")
+        if len(chosen) > 10:
+            lines.append(f"    ... and {len(chosen) - 10} more (columns 'replicates', 'replicates_reason' of properties.csv)")
     if result.report is not None and len(result.table):
         lines += ["", result.report.text]
     lines += ["", f"  written to {result.out_dir}/: report.html, properties.csv, properties.parquet, group_summary.csv, "
