@@ -164,12 +164,15 @@ def test_replicates_csv_holds_each_replicates_gain_delay_and_own_fit(differing):
 
 def test_auto_averages_replicates_of_one_gain_and_delay(tmp_path, client):
     truths = draw_truths(2, seed=9)
-    path = write_campaign(tmp_path, rig_rows(truths, [(1.3, 2), (1.3, 2)]), groups=(), replicates="auto")
+    path = write_campaign(tmp_path, rig_rows(truths, [(1.0, 0), (1.0, 0)]), groups=(), replicates="auto")
     result = run_campaign(path, tmp_path / "out", client=client, progress=False)
     table = result.table
     assert list(table["replicates"]) == ["averaged", "averaged"]
     assert table["replicates_reason"].str.startswith("auto: average").all()
     assert table["agreement_p_value"].isna().all()
+    for _, row in table.iterrows():  # the averaged record of one rig fits the truth
+        truth = truths["ab".index(row["sample_id"])]
+        assert all(abs(row[p] - truth[p]) <= 4 * row[f"{p}_se"] for p in PROPS), row["sample_id"]
     assert not (result.out_dir / "replicates.csv").exists()
     doc = json.loads((result.out_dir / "runs" / "a" / "result.json").read_text())
     assert doc["replicates"]["averaged"] == ["r1", "r2"] and doc["replicates"]["mode"] == "averaged"
