@@ -91,6 +91,14 @@ def _records(gains, delays, seed=0, n=1500):
     return out
 
 
+def test_records_of_different_length_are_fitted_jointly():
+    a, b = _records([1.0, 1.0], [0, 0])
+    short = Measurement(b.t[:1000], b.u[:1000], b.y[:1000])
+    choice = choose([a, short])
+    assert choice.mode == "joint" and "differ in length" in choice.reason
+    assert choose([a, b]).mode == "average"
+
+
 def test_lag_finds_a_known_shift():
     rng = np.random.default_rng(3)
     a = rng.standard_normal(500)

@@ -10,11 +10,13 @@ tau (y_r(t) = g_r * y(t - tau_r)). The records are compared with the first one:
   lag of the inputs u_r and u_1 (a trigger offset of both channels is no rig difference); the
   replicates differ in delay when |l_r| > :data:`LAG_TOLERANCE` samples.
 
-Either difference chooses ``joint`` (shared properties, per-replicate input gain and delay),
+Records of different length or time step cannot be averaged: ``joint``. Either difference
+chooses ``joint`` (shared properties, per-replicate input gain and delay),
 otherwise ``average``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -55,9 +57,12 @@ def lag(a: np.ndarray, b: np.ndarray) -> int:
 
 def choose(records: Sequence[Measurement]) -> Choice:
     """Joint when the replicates differ in gain or delay (module docstring), else average."""
+    first = records[0]
+    if any(len(m.t) != len(first.t) or abs(m.dt - first.dt) > 1e-6 * first.dt for m in records[1:]):
+        return Choice("joint", math.nan, 0, "auto: joint, the records differ in length or sampling "
+                                            "(they cannot be averaged)")
     amps = [_rms(m.y) / (_rms(m.u) or 1.0) for m in records]
     ratio = max(amps) / min(amps) if min(amps) > 0 else float("inf")
-    first = records[0]
     lags = [lag(first.y, m.y) - lag(first.u, m.u) for m in records[1:]]
     max_lag = max((abs(k) for k in lags), default=0)
     gain = ratio > 1.0 + GAIN_TOLERANCE
