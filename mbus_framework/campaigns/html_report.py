@@ -88,8 +88,10 @@ def campaign_report_html(result) -> str:
     (its table, group report and counts)."""
     c = result.campaign
     table = result.table
-    how = ("replicates averaged before fitting" if c.spec.replicates == "average"
-           else "each replicate fitted, then aggregated per sample")
+    from mbus_framework.campaigns.runner import replicates_how
+
+    how = ("each replicate fitted, then aggregated per sample" if c.spec.replicates == "fit"
+           else replicates_how(result))
     counts = {
         "fits": len(result.tasks),
         "run now": len(result.fitted),

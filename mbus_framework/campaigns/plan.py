@@ -18,7 +18,9 @@ from mbus_framework.errors import MbusError
 from mbus_framework.pipeline.components import build_components
 from mbus_framework.pipeline.config import apply_overrides, validate_structure
 
-AVERAGED, FITTED = "averaged", "fitted"
+AVERAGED, FITTED, JOINT, AUTO = "averaged", "fitted", "joint", "auto"
+#: campaign.replicates -> the task's ``replicates`` (one task per sample for all but "fit")
+MODES = {"average": AVERAGED, "fit": FITTED, "joint": JOINT, "auto": AUTO}
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ def plan_campaign(campaign: Campaign, out_dir: str | Path, plots: bool | None = 
         members = sorted(members, key=lambda i: campaign.rows[i].replicate)
         if any(i not in resolved for i in members):
             continue
-        units = [members] if campaign.spec.replicates == "average" else [[i] for i in members]
+        units = [[i] for i in members] if campaign.spec.replicates == "fit" else [members]
         for unit in units:
             task = _task(campaign, [campaign.rows[i] for i in unit], [resolved[i] for i in unit], len(members), runs, plots)
             other = labels.setdefault(task.label, sample_id)
@@ -143,12 +145,15 @@ def _blame(path: str, row: SheetRow) -> str | None:
 
 
 def _check_replicates(campaign: Campaign, members: list[int], resolved, problems: Problems) -> None:
-    """Replicates of one sample (rows ``members``) share its group labels; averaged replicates
-    share every setting but the backend (each is its own record) and, being one fit, their
-    covariates."""
+    """Replicates of one sample (rows ``members``) share its group labels; replicates averaged
+    (``average``, ``auto``) share every setting but the backend (each is its own record), jointly
+    fitted ones (``joint``) every setting but the backend and the sample geometry; being one fit,
+    they share their covariates."""
     i = members[0]
     first = campaign.rows[i]
-    averaged = campaign.spec.replicates == "average" and len(members) > 1
+    mode = campaign.spec.replicates
+    averaged = mode != "fit" and len(members) > 1
+    ignored = ("backend", "output", "sample") if mode == "joint" else ("backend", "output")
     for j in members[1:]:
         row = campaign.rows[j]
         for name, value in row.groups.items():
@@ -159,25 +164,26 @@ def _check_replicates(campaign: Campaign, members: list[int], resolved, problems
             continue
         for name, value in row.covariates.items():
             if value != first.covariates.get(name):
-                problems.add(f"{row.at(name)}: replicates of sample '{row.sample_id}' are averaged into one fit "
-                             f"(campaign.replicates: average), so they share one value ({first.covariates.get(name)!r} "
+                problems.add(f"{row.at(name)}: replicates of sample '{row.sample_id}' are combined into one fit "
+                             f"(campaign.replicates: {mode}), so they share one value ({first.covariates.get(name)!r} "
                              f"on {first.where.rpartition(': ')[2]})")
-        if i in resolved and j in resolved and _without_backend(resolved[i][0]) != _without_backend(resolved[j][0]):
+        if i in resolved and j in resolved and _without(resolved[i][0], ignored) != _without(resolved[j][0], ignored):
             keys = sorted(k for k in set(row.overrides) | set(first.overrides)
                           if not k.startswith("backend.") and row.overrides.get(k) != first.overrides.get(k))
+            but = "the backend, data and sample" if mode == "joint" else "the backend and data"
             problems.add(f"{row.at(keys[0] if keys else 'sample_id')}: replicates of sample '{row.sample_id}' are "
-                         f"averaged before one fit (campaign.replicates: average), so they must share every setting "
-                         f"but the backend and data; {first.where.rpartition(': ')[2]} differs")
+                         f"combined into one fit (campaign.replicates: {mode}), so they must share every setting "
+                         f"but {but}; {first.where.rpartition(': ')[2]} differs")
 
 
-def _without_backend(config: dict) -> dict:
-    return {k: v for k, v in config.items() if k not in ("backend", "output")}
+def _without(config: dict, keys: tuple[str, ...]) -> dict:
+    return {k: v for k, v in config.items() if k not in keys}
 
 
 def _task(campaign: Campaign, rows: list[SheetRow], resolved: list[tuple[dict, Any]], n_replicates: int,
           runs: Path, plots: bool | None) -> SampleTask:
     first, (config, components) = rows[0], resolved[0]
-    averaged = campaign.spec.replicates == "average"
+    averaged = campaign.spec.replicates != "fit"
     replicate = None if averaged else first.replicate
     label = run_label(first.sample_id, replicate)
     configs = tuple(c for c, _ in resolved)
@@ -189,7 +195,7 @@ def _task(campaign: Campaign, rows: list[SheetRow], resolved: list[tuple[dict, A
         label=label,
         sample_id=first.sample_id,
         replicate=replicate,
-        replicates=AVERAGED if averaged else FITTED,
+        replicates=MODES[campaign.spec.replicates],
         n_replicates=n_replicates,
         configs=configs,
         replicate_numbers=numbers,

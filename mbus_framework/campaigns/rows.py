@@ -37,6 +37,17 @@ def _estimates(row: dict[str, Any], task: "SampleTask", result: dict[str, Any] |
     row.update({f"{p}_ci_high": _f((pci.get(p) or [NAN, NAN])[1]) for p in props})
 
 
+def _choice(row: dict[str, Any], task: "SampleTask", result: dict[str, Any] | None) -> None:
+    """``joint``/``auto`` campaigns: ``replicates`` becomes what was done ("averaged" or "joint"),
+    with ``replicates_reason`` and the joint fit's ``agreement_p_value`` (NaN when averaged)."""
+    if task.replicates not in ("joint", "auto"):
+        return
+    rep = (result or {}).get("replicates") or {}
+    row["replicates"] = rep.get("mode", task.replicates)
+    row["replicates_reason"] = rep.get("reason")
+    row["agreement_p_value"] = _f(rep.get("agreement_p_value"))
+
+
 def _tail(row: dict[str, Any], task: "SampleTask", truth: dict[str, float], run_dir: str, seconds: float) -> None:
     row.update({f"true_{k}": _f(v) for k, v in truth.items()})
     row.update(task.covariates)
@@ -55,6 +66,7 @@ def result_row(task: "SampleTask", result: dict[str, Any], run_dir: str, truth: 
         warnings="; ".join(warnings) if warnings else None,
         error=None,
     )
+    _choice(row, task, result)
     if truth is None:
         truth = {**(result.get("truth") or {}), **(result.get("truth_properties") or {})}
     _tail(row, task, truth, run_dir, result.get("solver", {}).get("wall_time_s", NAN))
@@ -66,6 +78,7 @@ def failed_row(task: "SampleTask", error: str, run_dir: str, truth: dict[str, fl
     row = _head(task)
     _estimates(row, task, None)
     row.update(nrmse=NAN, success=False, warnings=None, error=" ".join(error.split()) or "failed")
+    _choice(row, task, None)
     _tail(row, task, truth or {}, run_dir, NAN)
     return row
 

@@ -6,6 +6,7 @@ Campaign folder (default ``<base output.directory>/<campaign name>``, so a re-ru
     campaign.json                  what ran: counts, timing, groups, the cluster
     properties.csv / .parquet      the campaign table, one row per sample (or replicate)
     samples.csv / .parquet         replicates: fit only: per-sample mean, SD and SE of the mean
+    replicates.csv / .parquet      replicates fitted jointly: per replicate its gain, delay and own fit
     group_summary.csv / .txt       Tables 4.2/4.3 layout
     plots/<property>_by_group.png
     report.html                    one self-contained page: counts, summary, failures, warnings, plots
@@ -24,6 +25,7 @@ from mbus_framework import __version__
 from mbus_framework.campaigns.attempt import CampaignLock
 from mbus_framework.campaigns.executor import dask_client, run_all, sigint_ignored
 from mbus_framework.campaigns.html_report import write_campaign_report
+from mbus_framework.campaigns.joint_replicates import replicate_rows
 from mbus_framework.campaigns.plan import FITTED, SampleTask, plan_campaign
 from mbus_framework.campaigns.problems import Problems
 from mbus_framework.campaigns.progress import CampaignProgress
@@ -196,6 +198,11 @@ def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: fl
         quantities += [c for c in result.table.columns if c.startswith("true_")]
         samples = aggregate_replicates(result.table, ["sample_id", *spec.groups], quantities)
         result.files.update(write_table(samples, out, "samples"))
+    per_replicate = replicate_rows(result.table, out) if len(result.table) else []
+    if per_replicate:
+        import pandas as pd
+
+        result.files.update(write_table(pd.DataFrame(per_replicate), out, "replicates"))
     if len(result.table):
         result.report = group_report(result.table, spec.groups, out, campaign.title)
         result.files.update(result.report.files)
@@ -219,6 +226,7 @@ def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float, e
         "groups": c.spec.groups,
         "covariates": c.spec.covariates,
         "replicates": c.spec.replicates,
+        **({"replicates_chosen": _choices(table)} if table is not None and "replicates_reason" in table else {}),
         "n_fits": len(result.tasks),
         "fitted": len(result.fitted),
         "reused": len(result.reused),
@@ -231,10 +239,31 @@ def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float, e
     })
 
 
+def replicates_how(result: CampaignResult) -> str:
+    """How the replicates were combined; for ``auto``/``joint``, how many samples each way."""
+    mode = result.campaign.spec.replicates
+    if mode == "average":
+        return "replicates averaged before fitting"
+    if mode == "fit":
+        return "each replicate fitted"
+    table = result.table
+    multi = table[table["n_replicates"] > 1] if table is not None and len(table) else []
+    joint = int((multi["replicates"] == "joint").sum()) if len(multi) else 0
+    averaged = int((multi["replicates"] == "averaged").sum()) if len(multi) else 0
+    return (f"replicates: {mode}: {joint} sample(s) fitted jointly (per-replicate gain and delay), {averaged} "
+            f"averaged before fitting")
+
+
+def _choices(table) -> dict[str, str]:
+    """Per sample with several replicates: what ``auto``/``joint`` did, and why."""
+    multi = table[table["n_replicates"] > 1]
+    return {str(s): f"{m} ({r})" for s, m, r in zip(multi["sample_id"], multi["replicates"], multi["replicates_reason"])}
+
+
 def summary_text(result: CampaignResult) -> str:
     """What ``mbus-run CAMPAIGN`` prints at the end."""
     c = result.campaign
-    how = "replicates averaged before fitting" if c.spec.replicates == "average" else "each replicate fitted"
+    how = replicates_how(result)
     failed = result.failed
     lines = [
         f"mbus campaign: {c.title}",
@@ -247,6 +276,12 @@ def summary_text(result: CampaignResult) -> str:
             lines.append(f"    {Path(run).name}: {errors[run]}")
         if len(failed) > 10:
             lines.append(f"    ... and {len(failed) - 10} more (column 'error' of properties.csv)")
+    if c.spec.replicates in ("auto", "joint") and result.table is not None and "replicates_reason" in result.table:
+        chosen = _choices(result.table)
+        for sample, how_chosen in list(chosen.items())[:10]:
+            lines.append(f"    {sample}: {how_chosen}")
+        if len(chosen) > 10:
+            lines.append(f"    ... and {len(chosen) - 10} more (columns 'replicates', 'replicates_reason' of properties.csv)")
     if result.report is not None and len(result.table):
         lines += ["", result.report.text]
     lines += ["", f"  written to {result.out_dir}/: report.html, properties.csv, properties.parquet, group_summary.csv, "

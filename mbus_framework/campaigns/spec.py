@@ -28,8 +28,10 @@ class CampaignSpec(BaseModel):
     samples: str | list[Any] = Field(description="sample sheet: CSV path (relative to the campaign file) or a list")
     groups: list[str] = Field(default_factory=list, description="group-label columns")
     covariates: list[str] = Field(default_factory=list, description="columns carried into the table untouched")
-    replicates: Literal["average", "fit"] = Field(
-        "average", description="average: average a sample's replicate records, one fit; fit: fit each replicate"
+    replicates: Literal["auto", "average", "joint", "fit"] = Field(
+        "auto", description="average: average a sample's replicate records, one fit; joint: fit them jointly "
+                            "(shared properties, per-replicate input gain and delay); auto: joint where the "
+                            "replicates differ in gain or delay, else average; fit: fit each replicate"
     )
     scheduler: str | None = Field(None, description="Dask scheduler address (tcp://host:8786); null = LocalCluster")
     workers: int | None = Field(None, ge=1, description="LocalCluster worker processes; null = one per core")

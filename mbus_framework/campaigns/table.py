@@ -10,7 +10,7 @@ import numpy as np
 from mbus_framework.pipeline.storage import atomic_write_bytes
 
 #: Text columns (pandas "string" dtype, missing when empty); every other non-label column is float64.
-TEXT = ("sample_id", "replicates", "warnings", "error", "run_dir")
+TEXT = ("sample_id", "replicates", "replicates_reason", "warnings", "error", "run_dir")
 
 
 def build_table(rows: Sequence[dict[str, Any]], groups: Sequence[str], covariates: Sequence[str]):

@@ -1,10 +1,11 @@
 """What a Dask worker does with one :class:`SampleTask`: the single-run pipeline
 (:func:`mbus_framework.pipeline.run.execute`) into the sample's run folder, then its table row.
 
-Averaged replicates: each replicate record is acquired through its own run config and saved
+Replicates (``average``, ``joint``, ``auto``): each replicate record is acquired through its own run config and saved
 (``replicates/r<k>/measurement.csv``) before anything is fitted; their mean is written to
 ``replicates/averaged.csv`` and fitted, with the ``file`` backend reading that file in the run
-folder's config.yaml, so the folder re-runs on its own. (The replicates are staged next to the
+folder's config.yaml, so the folder re-runs on its own; or the records are fitted jointly
+(:mod:`.joint_replicates`; ``auto`` chooses by :mod:`.replicate_choice`). (The replicates are staged next to the
 run folder and moved into it once the run has reserved it: a run folder starts empty.) A failure never escapes: a data or fit error (``MbusError``) becomes a row
 with its error and is remembered for resuming (the same data fail the same way); any other
 exception becomes a row too, with the traceback in ``error.txt``, and is retried on a re-run.
@@ -23,7 +24,9 @@ from typing import Any
 
 from mbus_framework.campaigns.attempt import is_current
 from mbus_framework.campaigns.hashing import digest
-from mbus_framework.campaigns.plan import SampleTask
+from mbus_framework.campaigns.joint_replicates import joint_result
+from mbus_framework.campaigns.plan import AUTO, AVERAGED, JOINT, SampleTask
+from mbus_framework.campaigns.replicate_choice import choose
 from mbus_framework.campaigns.replicates import average_records
 from mbus_framework.campaigns.rows import failed_row, result_row
 from mbus_framework.errors import DataError, MbusError
@@ -138,10 +141,26 @@ def _fit(task: SampleTask, work: Path, run_dir: Path) -> tuple[dict[str, Any], d
     """Fit into ``work``; ``run_dir`` is where the folder will be (the averaged record's path)."""
     if len(task.configs) == 1:
         outcome = execute(task.configs[0], [], work, plots=task.plots, source=task.source)
-        return outcome.result, None
+        result = outcome.result
+        if task.replicates in (JOINT, AUTO):  # one record: the joint fit is the single fit
+            result["replicates"] = {"mode": AVERAGED if task.replicates == AUTO else JOINT,
+                                    "reason": "one replicate", "records": [f"r{task.replicate_numbers[0]}"]}
+            atomic_write_json(work / "result.json", result)
+        return result, None
     staging = _staging(work)
     try:
-        mean = _average(task, staging)
+        records, names = _acquire_all(task, staging)
+        mode, reason = task.replicates, None
+        if mode == AUTO:
+            choice = choose(records)
+            mode, reason = (JOINT if choice.mode == "joint" else AVERAGED), choice.reason
+        if mode == JOINT:
+            result = joint_result(task.configs, records, names, task.source, task.configs[0].get("title"),
+                                  reason or "campaign.replicates: joint")
+            result["replicates"]["files"] = [f"replicates/{n}/measurement.csv" for n in names]
+            atomic_write_json(work / "result.json", result)
+            return result, None
+        mean = _average(records, names, task.source, staging)
         config = copy.deepcopy(task.configs[0])
         config["backend"] = {"name": "file", "options": {"path": str(run_dir / "replicates" / AVERAGED_FILE)}}
         outcome = execute(config, [], work, plots=task.plots, source=task.source, measurement=mean)
@@ -151,6 +170,8 @@ def _fit(task: SampleTask, work: Path, run_dir: Path) -> tuple[dict[str, Any], d
             staging.rename(work / "replicates")
     result = outcome.result
     result["replicates"] = {"averaged": [f"r{n}" for n in task.replicate_numbers], "file": f"replicates/{AVERAGED_FILE}"}
+    if reason is not None:
+        result["replicates"].update(mode=AVERAGED, reason=reason)
     atomic_write_json(work / "result.json", result)
     truth = {**(mean.truth or {}), **(mean.meta.get("true_properties") or {})}
     return result, truth
@@ -160,9 +181,8 @@ def _staging(run_dir: Path) -> Path:
     return run_dir.parent / f".{run_dir.name}.replicates"
 
 
-def _average(task: SampleTask, folder: Path):
-    """Acquire (and save) every replicate record into ``folder``, then write their sample-wise
-    mean there; returns the mean."""
+def _acquire_all(task: SampleTask, folder: Path):
+    """Acquire (and save) every replicate record into ``folder/r<k>/``; returns (records, names)."""
     records, names = [], []
     for number, config in zip(task.replicate_numbers, task.configs):
         c = build_components(validate_structure(config, task.source), task.source)
@@ -170,7 +190,12 @@ def _average(task: SampleTask, folder: Path):
         rep_dir.mkdir(parents=True, exist_ok=True)
         records.append(acquire(c, rep_dir, designed_waveform(c)))
         names.append(f"r{number}")
-    mean = average_records(records, names, task.source)
+    return records, names
+
+
+def _average(records, names, source: str, folder: Path):
+    """Write the sample-wise mean of ``records`` into ``folder``; returns the mean."""
+    mean = average_records(records, names, source)
     write_waveforms(folder / AVERAGED_FILE, mean.t, mean.u, mean.y)
     atomic_write_json(folder / "averaged.json", {"truth": mean.truth, "meta": mean.meta})
     return mean
