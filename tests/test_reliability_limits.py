@@ -48,7 +48,25 @@ def test_a_data_file_too_big_to_fit_is_refused_after_reading(tmp_path, monkeypat
         "order": 5, "bit_width": 2.5e-6, "sample_rate": 2.0e6, "n_samples": 16}})
     o = run_cli([write_yaml(tmp_path / "f.yaml", cfg), "-o", tmp_path / "out"])
     assert o.code == 2
-    assert "the record: a record of 200 samples" in o.err
+    assert "the record (saved; not fitted): a record of 200 samples" in o.err
+    assert "estimation.decimate: " in o.err
+    assert (tmp_path / "out" / "measurement.csv").is_file()  # nothing measured is lost
+
+
+def test_two_million_samples_are_refused_by_the_default_memory_budget_naming_a_decimation(tmp_path):
+    """Issue 24: a 2,000,000-sample record (a 20-state chain) needs more than the default 4 GiB:
+    refused in one line naming the decimation that would fit: before the acquisition for a
+    designed excitation (nothing is measured in vain), after saving it for a record read from
+    a file (the test above)."""
+    path = write_yaml(tmp_path / "big.yaml", config(
+        model={"name": "kelvin_voigt", "options": {"n_elements": 10}},
+        excitation={"name": "prbs", "options": {"order": 9, "bit_width": 0.4e-6, "sample_rate": 25.0e6,
+                                                "n_samples": 2_000_000}}))
+    o = run_cli([path, "-o", tmp_path / "out"])
+    assert o.code == 2, o.err
+    (line,) = [x for x in o.err.splitlines() if x.strip()]
+    assert "estimation.max_memory_GiB of 4 GiB" in line and "estimation.decimate: " in line
+    assert line.count("excitation.options") == 1
 
 
 def test_available_memory_respects_the_address_space_limit():

@@ -145,6 +145,8 @@ class EstimationConfig(_Strict):
                           "(1 = the whole band); the fit sees the band below 0.4 / (q dt)")
     window: list[float] | None = Field(None, description="fit only [start_s, stop_s) of the record [s], "
                                                "t counted from its first sample")
+    max_memory_GiB: float = Field(4.0, gt=0, description="refuse (in one line, naming the decimation that would "
+                                  "fit) a fit whose estimated peak memory exceeds this [GiB]")
 
     @field_validator("window")
     @classmethod

@@ -113,7 +113,12 @@ def check_run(c: "Components") -> None:
     if callable(grid):
         with plugin_failures(c.registry, source):
             n, rate = grid()
-        check_memory(c, int(n), "excitation.options (n_samples, duration or periods)")
+        est = getattr(c.config, "estimation", None)
+        fitted = int(n)
+        if est is not None and est.window is not None:
+            fitted = min(fitted, int((est.window[1] - est.window[0]) * rate) + 1)
+        fitted //= max(getattr(est, "decimate", 1), 1)
+        check_memory(c, fitted, "excitation.options (n_samples, duration or periods)", float(1.0 / rate))
 
 
 # -- resources -------------------------------------------------------------------------------
@@ -159,18 +164,30 @@ def available_memory() -> int | None:
     return avail
 
 
-def check_memory(c: "Components", n_samples: int, key: str) -> None:
-    """ResourceError naming ``key`` when a fit of ``n_samples`` would not fit in memory."""
+def check_memory(c: "Components", n_samples: int, key: str, dt: float | None = None) -> None:
+    """ResourceError naming ``key`` when a fit of ``n_samples`` would need more memory than is
+    available or than ``estimation.max_memory_GiB`` allows; the message names the decimation
+    factor that would fit (and, with ``dt``, the band it keeps)."""
     with plugin_failures(c.registry, c.source):
         n_states = int(c.model.n_states)
         n_params = len(c.model.parameters) + 2
     need = fit_bytes(n_samples, n_states, n_params)
     avail = available_memory()
-    if avail is not None and need > avail:
-        raise ResourceError(
-            f"{c.source}: {key}: a record of {n_samples:,} samples with a {n_states}-state model needs about "
-            f"{need / 2**30:.2f} GiB to fit, more than the {avail / 2**30:.2f} GiB available; shorten the record "
-            f"or use fewer model elements")
+    estimation = getattr(c.config, "estimation", None)
+    allowed = getattr(estimation, "max_memory_GiB", None)
+    limit = min(x for x in (avail, None if allowed is None else allowed * 2**30) if x is not None) \
+        if (avail is not None or allowed is not None) else None
+    if limit is None or need <= limit:
+        return
+    per_sample = (need - FIT_OVERHEAD_BYTES) / max(n_samples, 1)
+    q = int(np.ceil(n_samples * per_sample / max(limit - FIT_OVERHEAD_BYTES, 1)))
+    band = f" (keeps the band below {0.4 / (q * dt) / 1e6:.3g} MHz)" if dt else ""
+    which = ("the estimation.max_memory_GiB of " + f"{allowed:g} GiB" if allowed is not None and
+             (avail is None or allowed * 2**30 <= avail) else f"the {avail / 2**30:.2f} GiB available")
+    raise ResourceError(
+        f"{c.source}: {key}: a record of {n_samples:,} samples with a {n_states}-state model needs about "
+        f"{need / 2**30:.2f} GiB to fit, more than {which}; fit part of it: estimation.decimate: {q}{band}, "
+        f"or estimation.window, or use fewer model elements")
 
 
 # -- records ---------------------------------------------------------------------------------
@@ -222,7 +239,6 @@ def checked_measurement(m: "Measurement", c: "Components") -> "Measurement":
     check_arrays(m.t, m.u, m.y, where)
     if not np.any(m.u):
         raise DataError(f"{where}: the input u is all zero (nothing excited the sample)")
-    check_memory(c, len(m.t), "the record")
     duration = float(m.t[-1] - m.t[0])
     n = c.config.nuisance
     if n.max_delay is not None and n.max_delay >= duration:

@@ -158,6 +158,7 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     the solver or the uncertainty analysis are one-line errors (:func:`~mbus_framework.pipeline.limits.estimation_boundary`)."""
     recorded = m
     m, reduction = reduce_record(m, c.config.estimation, c.source)
+    limits.check_memory(c, len(m.t), "the record (saved; not fitted)", float(m.t[1] - m.t[0]))
     with limits.plugin_failures(c.registry, c.source):
         compensated = c.compensator.apply(m)
         problem = make_problem(c, compensated)
