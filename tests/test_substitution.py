@@ -256,3 +256,25 @@ def test_compare_models_ranks_every_family_on_a_real_plate(tmp_path):
     assert ranked[-1] == "kelvin_voigt_chain"  # alpha ~ f^2 cannot follow a near-linear attenuation
     result = json.loads((out / "result.json").read_text())
     assert all({"lag1_correlation", "p_value"} <= set(f["residual_structure"]) for f in result["fits"])
+
+
+def test_any_registered_chain_model_fits_a_real_plate_as_its_own_chain():
+    """model:<name> builds the plate from the registered plugin's own masses and normal links:
+    model:sls is the hand-wired sls_chain (same BIC), and a generalized Maxwell chain (two arms)
+    describes the softer plate as well as the constant-Q law."""
+    a = analyse(read_mat(DATA / "VW0.mat"), ["sls_chain", "model:sls", "model:generalized_maxwell", "constant_q"])
+    by = {f.law.name: f for f in a.fits}
+    assert by["model:sls"].bic == pytest.approx(by["sls_chain"].bic, abs=0.5)
+    assert by["model:generalized_maxwell"].explained > 0.99 and a.passed(by["model:generalized_maxwell"])
+    assert list(by["model:generalized_maxwell"].law.parameters)[:1] == ["E_sigma"]
+
+
+def test_registered_models_the_experiment_cannot_use_are_one_line_errors(tmp_path):
+    from mbus_framework.errors import ConfigError
+    from mbus_framework.substitution.config import check_laws
+
+    assert check_laws(["model:fractional_zener", "all"], "x.yaml")[:1] == ["kelvin_voigt"]
+    for bad in ("model:layered", "model:no_such_model"):
+        with pytest.raises(ConfigError, match=r"x.yaml: law: " + bad) as err:
+            check_laws([bad], "x.yaml")
+        assert "\n" not in str(err.value)

@@ -96,11 +96,27 @@ def load(path: str | Path, overrides: list[str] | None = None) -> SubstitutionCo
 def check_laws(law, source: str, key: str = "law") -> list[str]:
     """The law names ``law`` asks for (a name, a list, or "all"), each known; one-line error."""
     laws = list(LAWS) if law == "all" else ([law] if isinstance(law, str) else list(law or []))
-    bad = [x for x in laws if x not in LAWS]
+    if "all" in laws:  # a list naming "all" besides others: every law, then the others
+        laws = list(dict.fromkeys([*LAWS, *(x for x in laws if x != "all")]))
+    bad = [x for x in laws if x not in LAWS and not _registered(str(x))]
     if bad or not laws:
         where = f"{source}: {key}" if key == "law" else key
-        raise ConfigError(f"{where}: {', '.join(map(str, bad)) or 'empty'}: choose from {', '.join(LAWS)} or 'all'")
+        raise ConfigError(f"{where}: {', '.join(map(str, bad)) or 'empty'}: choose from {', '.join(LAWS)}, "
+                          f"model:<registered chain or frequency-response model>, or 'all'")
     return laws
+
+
+def _registered(name: str) -> bool:
+    """``model:<name>`` naming a registered model usable here (chains, frequency-response laws)."""
+    from mbus_framework.substitution.chains import MODEL_PREFIX, registered_law
+
+    if not name.startswith(MODEL_PREFIX):
+        return False
+    try:
+        registered_law(name[len(MODEL_PREFIX):])
+    except (ValueError, KeyError):
+        return False
+    return True
 
 
 def _number(source: Path, key: str, value, positive: bool) -> float:

@@ -111,11 +111,12 @@ def summary(a: SubstitutionAnalysis, run_dir: Path | None = None) -> str:
 def ranking_lines(a: SubstitutionAnalysis) -> list[str]:
     """The laws ranked by BIC with the in-band energy they explain, the structure left in their
     residual (lag-1 correlation across lines, Ljung-Box p) and the model-free verdict."""
+    width = max(18, *(len(f.law.name) for f in a.fits))
     out = ["laws ranked by BIC (lower is better; residual r1: lag-1 correlation across lines, 0 if white):",
-           f"  {'law':<18} {'params':>6} {'BIC':>9} {'dBIC':>8} {'explains':>9} {'r1':>6}  model-free"]
+           f"  {'law':<{width}} {'params':>6} {'BIC':>9} {'dBIC':>8} {'explains':>9} {'r1':>6}  model-free"]
     b0 = a.fits[0].bic
     for f in a.fits:
-        out.append(f"  {f.law.name:<18} {len(f.values):>6} {f.bic:9.1f} {f.bic - b0:8.1f} {100 * f.explained:8.2f}% "
+        out.append(f"  {f.law.name:<{width}} {len(f.values):>6} {f.bic:9.1f} {f.bic - b0:8.1f} {100 * f.explained:8.2f}% "
                    f"{f.structure.get('lag1_correlation', float('nan')):6.2f}  "
                    f"{'agrees' if a.passed(f) else 'departs'}")
     return out
