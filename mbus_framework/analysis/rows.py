@@ -18,16 +18,26 @@ def usable_rows(df, columns: Sequence[str]):
     """(rows without an error and with finite values in ``columns``, counts).
 
     ``counts`` = {"rows": all rows, "failed": rows with an error, "missing": other rows
-    lacking a finite value in one of ``columns``, "used": rows kept}.
+    lacking a finite value in one of ``columns``, "used": rows kept, and "non_numeric": the
+    first few cells that hold text instead of a number, as "column of sample: 'text'"}.
     """
     import pandas as pd
 
     failed = failed_mask(df)
-    values = df[list(columns)].apply(pd.to_numeric, errors="coerce")
+    raw = df[list(columns)]
+    values = raw.apply(pd.to_numeric, errors="coerce")
     finite = np.isfinite(values.to_numpy(dtype=float)).all(axis=1) if len(columns) else np.ones(len(df), bool)
     keep = ~failed & finite
     counts = {"rows": int(len(df)), "failed": int(failed.sum()), "missing": int((~failed & ~finite).sum()),
               "used": int(keep.sum())}
+    text = values.isna() & raw.notna() & ~failed[:, None] if len(columns) else None
+    if text is not None and text.to_numpy().any():
+        ids = df["sample_id"].astype(str) if "sample_id" in df.columns else pd.Series(
+            [f"row {i + 1}" for i in range(len(df))], index=df.index)
+        cells = [(col, ids.iloc[i], raw[col].iloc[i]) for i, col in zip(*np.nonzero(text.to_numpy()))
+                 for col in [raw.columns[col]]]
+        counts["non_numeric"] = [f"{c} of {sid}: {str(v)[:20]!r}" for c, sid, v in cells[:3]] + (
+            [f"{len(cells) - 3} more"] if len(cells) > 3 else [])
     out = df.loc[keep].copy()
     out[list(columns)] = values.loc[keep]
     return out, counts
@@ -39,6 +49,8 @@ def describe_exclusions(counts: dict, what: str = "rows") -> str:
     if counts.get("failed"):
         parts.append(f"{counts['failed']} failed (error)")
     if counts.get("missing"):
-        parts.append(f"{counts['missing']} with missing values")
+        text = counts.get("non_numeric")
+        parts.append(f"{counts['missing']} with missing or non-numeric values"
+                     + (f" (text in {', '.join(text)})" if text else ""))
     tail = f" (excluded: {', '.join(parts)})" if parts else ""
     return f"used {counts['used']} of {counts['rows']} {what}{tail}"

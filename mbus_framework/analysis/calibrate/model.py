@@ -175,7 +175,7 @@ def table_6_2(analysis: CalibrationAnalysis):
     stats = ("Minimum", "Maximum", "Mean", "Std. Deviation")
 
     def describe(values) -> list[float]:
-        v = np.asarray(values, dtype=float)
+        v = pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(dtype=float)  # text cells: NaN
         v = v[np.isfinite(v)]
         if v.size == 0:
             return [np.nan] * 4

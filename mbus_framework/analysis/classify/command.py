@@ -8,6 +8,7 @@ Writes, into ``--out`` (default ``<table folder>/classify_<COLUMN>``): ``classif
 from __future__ import annotations
 
 import argparse
+import sys
 
 from mbus_framework.errors import DataError
 from mbus_framework.analysis.classify.model import classify, feature_sets
@@ -48,6 +49,9 @@ def _sets(args, df) -> list[tuple[str, ...]] | None:
         return None
     if not present:
         raise DataError(f"{args.table}: none of {', '.join(PROPERTIES)} is a column; name --properties")
+    absent = [p for p in PROPERTIES if p not in present]
+    print(f"{args.table}: no column {', '.join(absent)}: classifying by {', '.join(present)} and their "
+          f"combinations only", file=sys.stderr)
     return feature_sets(present)
 
 

@@ -107,11 +107,17 @@ def join_scores(table: pd.DataFrame, panel: pd.DataFrame, inputs, table_source: 
             notes.append(f"left out {int(failed.sum())} failed fit(s): {', '.join(table.loc[failed, 'sample_id'][:5])}")
             table = table[~failed]
     values = table[["sample_id", *inputs]].copy()
+    text = []
     for col in inputs:
-        values[col] = pd.to_numeric(values[col], errors="coerce")
+        numbers = pd.to_numeric(values[col], errors="coerce")
+        bad = numbers.isna() & values[col].notna()
+        text += [f"{col} of {sid}: {str(v)[:20]!r}" for sid, v in zip(values.loc[bad, "sample_id"], values.loc[bad, col])]
+        values[col] = numbers
     missing = values[list(inputs)].isna().any(axis=1)
     if missing.any():
-        notes.append(f"left out {int(missing.sum())} row(s) with missing inputs: {', '.join(values.loc[missing, 'sample_id'][:5])}")
+        named = f" (text in {', '.join(text[:3])}{' ...' if len(text) > 3 else ''})" if text else ""
+        notes.append(f"left out {int(missing.sum())} row(s) with missing or non-numeric inputs: "
+                     f"{', '.join(values.loc[missing, 'sample_id'][:5])}{named}")
         values = values[~missing]
     if values["sample_id"].duplicated().any():
         notes.append("averaged the replicate rows of each sample")
