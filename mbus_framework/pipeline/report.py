@@ -54,6 +54,12 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
         if name in tprops and tprops[name]:
             row += f"{tprops[name]:>14.5g}{100 * (value / tprops[name] - 1):>9.3f}%"
         lines.append(row)
+    for g in unc.get("correlated_groups") or []:
+        if g.get("best") and g.get("worst") and not g.get("warning"):  # a warning says it below
+            lines.append(f"  correlated: {', '.join(g['parameters'])} (|r| up to {g['max_correlation']:.6g}); the "
+                         f"record determines {g['best']['expression']} to "
+                         f"{100 * g['best']['relative_standard_error']:.2g} % and {g['worst']['expression']} to "
+                         f"{100 * g['worst']['relative_standard_error']:.2g} %")
     if result.get("dispersion"):
         from mbus_framework.pipeline.dispersion import summary_line
 
