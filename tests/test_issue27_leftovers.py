@@ -1,0 +1,124 @@
+"""Issue 27 leftovers: positive intervals, fixing by property, units, specific hints, file hashes."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import mbus_framework as mbus
+from fakes.recording import POTATO, prbs_burst, simulate
+from mbus_framework.estimation.uncertainty import Uncertainty, confidence_intervals, positive_interval
+
+
+# -- item 9: intervals of positive quantities ------------------------------------------------
+def test_synthetic_uncertainty_positive_intervals_never_reach_zero():
+    values = np.array([2.0e12, 5.0, 1e-3, 3.0])
+    se = np.array([1.5e12, 50.0, np.inf, 0.1])
+    unc = Uncertainty(["a", "b", "c", "d"], np.diag(se**2), se, np.eye(4), dof=100, residual_std=1.0)
+    ci = unc.intervals(values, positive=[True, True, True, False])
+    q = stats.t.ppf(0.975, 100)
+    assert np.all(ci[:3, 0] > 0)
+    # log-scale: the estimate is the geometric centre, ln width = 2 q SE/v
+    np.testing.assert_allclose(ci[0, 0] * ci[0, 1], values[0] ** 2, rtol=1e-12)
+    np.testing.assert_allclose(np.log(ci[1, 1] / ci[1, 0]), 2 * q * se[1] / values[1], rtol=1e-12)
+    assert ci[2, 1] == math.inf
+    # a quantity that may be negative keeps the symmetric interval
+    np.testing.assert_allclose(ci[3], [3.0 - q * 0.1, 3.0 + q * 0.1])
+    # a negative value is never put on the log scale
+    assert confidence_intervals([-1.0], [0.5], 2.0, [True])[0].tolist() == [-2.0, 0.0]
+    lo, hi = positive_interval(10.0, 20.0, 1.96)
+    assert 0 < lo < 10.0 < hi
+
+
+@pytest.fixture(scope="module")
+def sls_on_kv():
+    """An SLS fitted to a Kelvin-Voigt record: E1_sigma is barely determined (rel. SE > 100 %)."""
+    u = prbs_burst(POTATO, POTATO.n_samples)
+    t, y = simulate(POTATO, u, seed=3)
+    return mbus.fit(t, u, y, sample=POTATO.sample, model="sls")
+
+
+def test_sls_poorly_determined_parameter_interval_stays_positive(sls_on_kv):
+    doc = sls_on_kv.document
+    unc = doc["uncertainty"]
+    rel = unc["relative_standard_errors"]
+    worst = max(rel, key=rel.get)
+    q = stats.t.ppf(0.975, doc["fit"]["n_samples"] - len(rel))
+    assert rel[worst] * q > 1.0, "the test needs a parameter whose symmetric interval would cross zero"
+    for table in ("ci95", "property_ci95"):
+        for name, (lo, hi) in unc[table].items():
+            assert 0 < lo < hi, (table, name, lo, hi)
+    value = doc["parameters"][worst]
+    lo, hi = unc["ci95"][worst]
+    np.testing.assert_allclose(lo * hi, value**2, rtol=1e-9)
+    # the printed property table shows no interval starting at zero or below
+    for line in sls_on_kv.summary().splitlines():
+        if "[" in line and "," in line and "Pa" in line:
+            lo_txt = line.split("[")[1].split(",")[0]
+            assert float(lo_txt) > 0, line
+
+
+# -- item 8: model.fixed by property name ------------------------------------------------------
+@pytest.fixture(scope="module")
+def potato_record():
+    u = prbs_burst(POTATO, POTATO.n_samples)
+    t, y = simulate(POTATO, u, seed=3)
+    return t, u, y
+
+
+def test_model_fixed_accepts_a_property_and_prints_it_as_fixed(potato_record):
+    t, u, y = potato_record
+    res = mbus.fit(t, u, y, sample=POTATO.sample, model="kelvin_voigt", fixed={"eta_tau": 5000.0})
+    doc = res.document
+    # eta_tau = b_tau L / A moves b_tau only: the run holds that parameter, at the matching value
+    assert list(doc["fixed"]) == ["b_tau"]
+    assert doc["properties"]["eta_tau"] == pytest.approx(5000.0, rel=1e-9)
+    assert doc["fixed_properties"] == ["eta_tau"]
+    assert "eta_tau" not in doc["uncertainty"]["property_ci95"]
+    assert res.properties["eta_tau"].fixed and not res.properties["E_sigma"].fixed
+    row = next(line for line in res.summary().splitlines() if line.strip().startswith("eta_tau"))
+    assert "fixed" in row and "[" not in row
+    assert res.parameters["b_tau"].fixed
+
+
+def test_model_fixed_unknown_name_suggests_parameters_and_properties(potato_record):
+    t, u, y = potato_record
+    from mbus_framework.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        mbus.fit(t, u, y, sample=POTATO.sample, model="kelvin_voigt", fixed={"eta_tua": 5000.0})
+    msg = str(err.value)
+    assert "model.fixed.eta_tua" in msg and "did you mean 'eta_tau'" in msg and "\n" not in msg
+    assert "KelvinVoigt" not in msg  # no class names
+
+
+class _Coupled:
+    """A duck-typed model whose property P = a * b depends on two parameters."""
+
+    from mbus_framework.interfaces.model import Parameter as _P
+
+    parameters = (_P("a", "-", "a", typical=2.0), _P("b", "-", "b", typical=3.0))
+    parameter_names = ["a", "b"]
+    property_names = ["P", "a_prop"]
+
+    def to_properties(self, theta):
+        return {"P": theta[0] * theta[1], "a_prop": 2 * theta[0]}
+
+    def from_properties(self, props):
+        a = props["a_prop"] / 2
+        return np.array([a, props["P"] / a])
+
+
+def test_a_property_of_several_parameters_asks_to_fix_parameters():
+    from mbus_framework.errors import ConfigError
+    from mbus_framework.pipeline.fixed_names import resolve_fixed
+
+    # a_prop moves a, but from_properties then moves b too (P held): two parameters change
+    with pytest.raises(ConfigError, match=r"cfg.yaml: model.fixed.a_prop: this property depends on several"):
+        resolve_fixed(_Coupled(), {"a_prop": 5.0}, "model.fixed", "cfg.yaml")
+    # P moves b alone: accepted, b = P / a at the template... only if a is the same in every template: it is not
+    with pytest.raises(ConfigError, match="fix parameters instead"):
+        resolve_fixed(_Coupled(), {"P": 12.0}, "model.fixed", "cfg.yaml")
+    assert resolve_fixed(_Coupled(), {"a": 1.0}, "model.fixed", "cfg.yaml") == {"a": 1.0}
