@@ -122,3 +122,74 @@ def test_a_property_of_several_parameters_asks_to_fix_parameters():
     with pytest.raises(ConfigError, match="fix parameters instead"):
         resolve_fixed(_Coupled(), {"P": 12.0}, "model.fixed", "cfg.yaml")
     assert resolve_fixed(_Coupled(), {"a": 1.0}, "model.fixed", "cfg.yaml") == {"a": 1.0}
+
+
+# -- item 3: volts are not newtons -------------------------------------------------------------
+REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+CH1, CH2 = REPO / "examples/recorded/A0001CH1.CSV", REPO / "examples/recorded/A0001CH2.CSV"
+
+
+def _acquire(**options):
+    from mbus_plugins.backends.file import FileBackend, FileOptions
+
+    return FileBackend(options=FileOptions(**options)).acquire(None)
+
+
+def test_scope_vertical_units_are_carried_and_a_gain_makes_newtons():
+    assert _acquire(path=str(CH1), response_path=str(CH2)).meta["units"] == {"u": "V", "y": "V"}
+    m = _acquire(path=str(CH1), response_path=str(CH2), processing={"u_gain": 2.0})
+    assert m.meta["units"] == {"u": "N", "y": "V"}
+    m = _acquire(path=str(CH1), response_path=str(CH2), units={"u": "N", "y": "N"})
+    assert m.meta["units"] == {"u": "N", "y": "N"} and m.meta["units_source"] == "backend.options.units"
+
+
+def test_units_row_in_volts_is_carried(tmp_path):
+    t = np.arange(400) * 4e-8
+    u = np.where(t < 2e-6, np.sin(2 * np.pi * 1e6 * t), 0.0)
+    rows = "\n".join(f"{a:.9g},{b:.9g},{c:.9g}" for a, b, c in zip(t, u, 0.5 * u))
+    path = tmp_path / "rec.csv"
+    path.write_text("t,u,y\ns,V,V\n" + rows + "\n")
+    assert _acquire(path=str(path), units_row=True, pretrigger=False).meta["units"] == {"t": "s", "u": "V", "y": "V"}
+
+
+def test_apply_units_labels_and_warns_only_without_gains():
+    from mbus_framework.pipeline.units import apply_units
+
+    def result():
+        return {"parameter_units": {"k_sigma": "N/m", "input_gain": "N/unit"}, "property_units": {"E_sigma": "Pa"},
+                "warnings": []}
+
+    volts = {"units": {"u": "V", "y": "V"}, "units_source": "scope"}
+    r = result()
+    apply_units(r, volts, gain_estimated=False, gain_name="input_gain")
+    assert r["property_units"] == {"E_sigma": "Pa (V/V)"} and len(r["warnings"]) == 1
+    assert r["warnings"][0].startswith("units: scope gives u in V, y in V") and "nuisance.input_gain.estimate" in r["warnings"][0]
+    r = result()
+    apply_units(r, volts, gain_estimated=True, gain_name="input_gain")
+    assert r["warnings"] == [] and r["property_units"] == {"E_sigma": "Pa"}
+    assert r["parameter_units"]["input_gain"] == "V/V"
+    r = result()
+    apply_units(r, {"units": {"u": "V", "y": "N"}}, gain_estimated=True, gain_name="input_gain")
+    assert r["parameter_units"]["input_gain"] == "N/V" and r["warnings"] == []
+    r = result()
+    apply_units(r, {}, gain_estimated=False, gain_name="input_gain")
+    assert r == result()  # nothing known: nothing said
+
+
+def test_scope_record_in_volts_without_gains_warns_and_labels(tmp_path, capsys):
+    import json
+
+    import yaml
+
+    from mbus_framework.cli import main
+
+    cfg = yaml.safe_load((REPO / "configs/recorded_gds2062.yaml").read_text())
+    del cfg["backend"]["options"]["processing"]
+    cfg["backend"]["options"].update(path=str(CH1), response_path=str(CH2))
+    (tmp_path / "v.yaml").write_text(yaml.safe_dump(cfg))
+    assert main([str(tmp_path / "v.yaml"), "-o", str(tmp_path / "out"), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    r = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert [w for w in r["warnings"] if w.startswith("units:")] == [r["warnings"][0]]
+    assert r["property_units"]["E_sigma"] == "Pa (V/V)" and r["record_units"] == {"u": "V", "y": "V"}
+    assert "Pa (V/V)" in out and "WARNING: units:" in out

@@ -14,6 +14,7 @@ from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrela
 from mbus_framework.estimation.uncertainty import confidence_intervals, from_jacobian, property_covariance
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 from mbus_framework.pipeline.dispersion import dispersion_section
+from mbus_framework.pipeline.units import apply_units
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -150,6 +151,8 @@ def build_result(
     result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance,
                                             c.config.identifiability.precise_relative_se)
     result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
+    nuis = problem.nuisance
+    apply_units(result, m.meta, nuis.estimate_gain or nuis.gain != 1.0, GAIN)
     result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
         result["warnings"].insert(
