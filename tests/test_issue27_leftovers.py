@@ -193,3 +193,33 @@ def test_scope_record_in_volts_without_gains_warns_and_labels(tmp_path, capsys):
     assert [w for w in r["warnings"] if w.startswith("units:")] == [r["warnings"][0]]
     assert r["property_units"]["E_sigma"] == "Pa (V/V)" and r["record_units"] == {"u": "V", "y": "V"}
     assert "Pa (V/V)" in out and "WARNING: units:" in out
+
+
+# -- item 5: the data files' content hash in measurement.json -----------------------------------
+def test_measurement_json_records_absolute_paths_and_sha256_of_the_data_files(tmp_path):
+    import hashlib
+    import json
+    import shutil
+
+    from mbus_framework.campaigns.hashing import digest
+    from mbus_framework.pipeline.run import acquire, load_components
+
+    data = tmp_path / "data"
+    data.mkdir()
+    for f in (CH1, CH2):
+        shutil.copy(f, data / f.name)
+    cfg = tmp_path / "cfg" / "run.yaml"
+    cfg.parent.mkdir()
+    cfg.write_text((REPO / "configs/recorded_gds2062.yaml").read_text().replace("../examples/recorded/", "../data/"))
+    c = load_components(cfg)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    acquire(c, run_dir, None)
+    saved = json.loads((run_dir / "measurement.json").read_text())
+    inputs = {e["key"]: e for e in saved["inputs"]}
+    assert set(inputs) == {"backend.options.path", "backend.options.response_path"}
+    for key, f in (("backend.options.path", CH1), ("backend.options.response_path", CH2)):
+        assert inputs[key]["path"] == str((data / f.name).resolve())
+        assert inputs[key]["sha256"] == hashlib.sha256(f.read_bytes()).hexdigest()
+    # the campaigns' digest is the same function (one rule for a file's content hash)
+    assert digest(CH1) == inputs["backend.options.path"]["sha256"] and digest(tmp_path / "nope") == "missing"
