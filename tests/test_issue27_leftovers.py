@@ -223,3 +223,65 @@ def test_measurement_json_records_absolute_paths_and_sha256_of_the_data_files(tm
         assert inputs[key]["sha256"] == hashlib.sha256(f.read_bytes()).hexdigest()
     # the campaigns' digest is the same function (one rule for a file's content hash)
     assert digest(CH1) == inputs["backend.options.path"]["sha256"] and digest(tmp_path / "nope") == "missing"
+
+
+# -- item 4: specific hints: wrong time unit, swapped channels ------------------------------------
+TUY = REPO / "examples/recorded/potato_tuy.csv"
+
+
+def _hints(m):
+    from mbus_framework.pipeline.hints import record_hints
+
+    return record_hints(m)
+
+
+def _shipped_measurements():
+    from mbus_framework.pipeline.run import designed_waveform, load_components
+    from mbus_framework.interfaces.backend import AcquisitionContext
+
+    for name in ("potato.yaml", "recorded.yaml", "recorded_gds2062.yaml"):
+        c = load_components(REPO / "configs" / name)
+        wave = designed_waveform(c)
+        yield name, c.backend.acquire(AcquisitionContext(wave, c.sample, c.model, c.registry, None, c.source))
+
+
+def test_no_hint_on_the_shipped_records():
+    for name, m in _shipped_measurements():
+        assert _hints(m) == [], name
+
+
+@pytest.mark.parametrize("scale, unit", [(1e6, "microseconds"), (1e3, "milliseconds")])
+def test_time_in_micro_or_milliseconds_gets_one_hint_naming_the_factor(scale, unit):
+    from mbus_framework.interfaces.backend import check_record
+
+    m = _acquire(path=str(TUY))
+    hints = _hints(check_record("rec.csv", m.t * scale, m.u, m.y))
+    assert len(hints) == 1 and "\n" not in hints[0]
+    assert hints[0].startswith("time:") and f"in {unit}? multiply t by {1 / scale:.0e}".replace("e-0", "e-") in hints[0]
+
+
+def test_swapped_channels_get_one_hint_naming_what_to_swap():
+    from mbus_framework.interfaces.backend import check_record
+
+    m = _acquire(path=str(TUY))
+    hints = _hints(check_record("rec.csv", m.t, m.y, m.u))
+    assert len(hints) == 1 and hints[0].startswith("channels: the output leads the input")
+    assert "backend.options.columns" in hints[0]
+    pair = _acquire(path=str(CH2), response_path=str(CH1))  # CH2 (received) given as the excitation channel
+    hints = _hints(pair)
+    assert len(hints) == 1 and "swap backend.options.path and response_path" in hints[0]
+
+
+@pytest.mark.slow
+def test_shipped_configs_run_warning_free_and_a_swapped_pair_warns_once(tmp_path, capsys):
+    import json
+
+    from mbus_framework.cli import main
+
+    for name in ("potato.yaml", "recorded.yaml", "recorded_gds2062.yaml"):
+        assert main([str(REPO / "configs" / name), "-o", str(tmp_path / name), "--no-plots"]) == 0
+        assert json.loads((tmp_path / name / "result.json").read_text())["warnings"] == [], name
+    assert main([str(REPO / "configs/recorded_gds2062.yaml"), "-o", str(tmp_path / "sw"), "--no-plots",
+                 "--set", f"backend.options.path={CH2}", "--set", f"backend.options.response_path={CH1}"]) == 0
+    warnings = json.loads((tmp_path / "sw" / "result.json").read_text())["warnings"]
+    assert sum(w.startswith("channels:") for w in warnings) == 1

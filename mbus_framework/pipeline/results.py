@@ -14,6 +14,7 @@ from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrela
 from mbus_framework.estimation.uncertainty import confidence_intervals, from_jacobian, property_covariance
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 from mbus_framework.pipeline.dispersion import dispersion_section
+from mbus_framework.pipeline.hints import record_hints
 from mbus_framework.pipeline.units import apply_units
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -147,7 +148,7 @@ def build_result(
         result["compensation"] = compensation
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
-    measured = measurement_warnings(m)
+    measured = measurement_warnings(m) + record_hints(m)  # hints: wrong time unit, swapped channels
     result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance,
                                             c.config.identifiability.precise_relative_se)
     result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
