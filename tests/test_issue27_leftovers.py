@@ -285,3 +285,49 @@ def test_shipped_configs_run_warning_free_and_a_swapped_pair_warns_once(tmp_path
                  "--set", f"backend.options.path={CH2}", "--set", f"backend.options.response_path={CH1}"]) == 0
     warnings = json.loads((tmp_path / "sw" / "result.json").read_text())["warnings"]
     assert sum(w.startswith("channels:") for w in warnings) == 1
+
+
+# -- item 6: every file variant of docs/recorded-data.md loads with at most one reader option ---
+VARIANTS = REPO / "examples/recorded/variants"
+OPTION = {
+    "renamed.csv": ("columns", {"t": "time", "u": "excitation", "y": "response"}),
+    "semicolon.csv": ("delimiter", ";"),
+    "decimal_comma.csv": ("decimal", ","),
+    "units_row.csv": ("units_row", True),
+    "preamble.csv": ("skip_rows", 2),
+    "headerless.txt": ("columns", {"t": 0, "u": 1, "y": 2}),
+    "commented.tsv": None,
+    "scope_u.csv": ("response_path", str(VARIANTS / "scope_y.csv")),
+}
+
+
+@pytest.mark.parametrize("name", sorted(OPTION))
+def test_each_variant_loads_with_its_one_option_and_the_error_names_it(name):
+    from mbus_framework.errors import DataError
+
+    reference = _acquire(path=str(TUY))
+    option = OPTION[name]
+    if option is not None:
+        key = "columns" if option[0] == "response_path" else option[0]  # a lone time,value file: say which is which
+        with pytest.raises(DataError, match=rf"backend\.options\.{key}"):
+            _acquire(path=str(VARIANTS / name))
+    m = _acquire(path=str(VARIANTS / name), **(dict([option]) if option else {}))
+    np.testing.assert_array_equal(m.u, reference.u)
+    np.testing.assert_array_equal(m.y, reference.y)
+    np.testing.assert_allclose(m.t, reference.t, rtol=1e-12, atol=1e-18)
+
+
+def test_variant_files_are_what_their_script_makes(tmp_path):
+    import runpy
+
+    runpy.run_path(str(VARIANTS / "make_variants.py"))["write"](tmp_path)
+    for name in [*OPTION, "scope_y.csv"]:
+        assert (tmp_path / name).read_bytes() == (VARIANTS / name).read_bytes(), name
+
+
+def test_docs_show_each_variant_as_a_tested_command():
+    text = (REPO / "docs/recorded-data.md").read_text()
+    block = text.split("<!-- test: run -->\n```bash\n")
+    commands = "\n".join(b.split("```")[0] for b in block[1:])
+    for name in OPTION:
+        assert f"examples/recorded/variants/{name}" in commands, name
