@@ -28,7 +28,7 @@ def resolve_fixed(model: MediumModel, mapping: Mapping[str, float], where: str, 
         else:
             hint = did_you_mean(name, model.parameter_names + model.property_names)
             raise ConfigError(
-                f"{source}: {where}.{name}: not a parameter or property of the model{hint}; "
+                f"{source}: {where}.{name}: not a parameter or property of this model{hint}; "
                 f"parameters: {', '.join(model.parameter_names)}; properties: {', '.join(model.property_names)}"
             )
         if key in out and not np.isclose(out[key], val, rtol=1e-9):
