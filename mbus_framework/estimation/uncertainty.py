@@ -146,4 +146,5 @@ def property_covariance(to_properties, theta: np.ndarray, free: np.ndarray, cov_
         dn[i] -= h
         pu, pd = to_properties(up), to_properties(dn)
         G[:, j] = [(pu[k] - pd[k]) / (2 * h) for k in names]
-    return names, values, G @ cov_free @ G.T
+    with np.errstate(invalid="ignore"):  # an unseen direction (infinite variance) times a zero slope
+        return names, values, G @ cov_free @ G.T
