@@ -40,6 +40,7 @@ def sls_on_kv():
     return mbus.fit(t, u, y, sample=POTATO.sample, model="sls")
 
 
+@pytest.mark.slow  # an SLS fitted to a Kelvin-Voigt record: 10 s alone, minutes on a busy machine
 def test_sls_poorly_determined_parameter_interval_stays_positive(sls_on_kv):
     doc = sls_on_kv.document
     unc = doc["uncertainty"]
