@@ -406,8 +406,9 @@ def test_unknown_plugin_name_lists_the_choices(tmp_path, registry, override, kin
         ),
         ("model.initial={k_sigma: 1.0e8, b_sigma: 10.0}", "model.initial: give all of"),
         ("model.initial={k_sigma: 1.0e8, b_sigma: 10.0, E_tau: 1.0e7, eta_tau: 5.0}", "model.initial: give all of"),
-        ("model.fixed={k_sigam: 1.0e8}", "model.fixed.k_sigam: not a parameter of model"),
-        ("model.fixed={E_tau: 1.0e8}", "model.fixed.E_tau: not a parameter of model"),
+        ("model.fixed={k_sigam: 1.0e8}", "model.fixed.k_sigam: not a parameter or property of this model"),
+        ("model.fixed={E_tua: 1.0e8}", "model.fixed.E_tua: not a parameter or property of this model; did you "
+                                       "mean 'E_tau'?"),
     ],
 )
 def test_unknown_parameter_names_in_initial_and_fixed(tmp_path, registry, override, fragment):

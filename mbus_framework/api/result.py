@@ -122,7 +122,7 @@ class Result:
         truth = d.get("truth_properties", {})
         return {
             n: Estimate(n, float(v), d.get("property_units", {}).get(n, ""), _opt(se.get(n)),
-                        _pair(ci.get(n)), _opt(truth.get(n)))
+                        _pair(ci.get(n)), _opt(truth.get(n)), n in d.get("fixed_properties", ()))
             for n, v in d["properties"].items()
         }
 

@@ -15,8 +15,9 @@ from typing import Any, Iterable
 
 from mbus_framework import __version__
 from mbus_framework.campaigns.paths import path_values
+from mbus_framework.pipeline.input_files import digest
 
-_CHUNK = 1 << 20
+__all__ = ["content_key", "digest", "input_digests", "input_files"]
 
 
 def content_key(configs: Iterable[dict[str, Any]], replicate_numbers: Iterable[int], mode: str,
@@ -49,24 +50,3 @@ def input_files(configs: Iterable[dict[str, Any]]) -> list[Path]:
 def input_digests(configs: Iterable[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
     """``(absolute path, SHA-256 of its content)`` of every input file (``"missing"`` when absent)."""
     return tuple((str(p), digest(p)) for p in input_files(configs))
-
-
-def digest(path: str | Path) -> str:
-    """Hex SHA-256 of a file, of a folder (every file in it, by relative path), or ``"missing"``."""
-    path = Path(path)
-    h = hashlib.sha256()
-    if path.is_dir():
-        for f in sorted(p for p in path.rglob("*") if p.is_file()):
-            h.update(b"\0member\0" + str(f.relative_to(path)).encode())
-            _update_with_file(h, f)
-    elif path.is_file():
-        _update_with_file(h, path)
-    else:
-        return "missing"
-    return h.hexdigest()
-
-
-def _update_with_file(h, path: Path) -> None:
-    with open(path, "rb") as fh:
-        while chunk := fh.read(_CHUNK):
-            h.update(chunk)

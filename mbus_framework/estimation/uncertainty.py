@@ -10,6 +10,11 @@ parameter never looks precise. ``condition`` is the smallest/largest singular va
 
 95 % intervals use Student's t with N - p degrees of freedom. Property intervals follow by
 the delta method, Cov(P) = G Cov(theta) G^T with G = dP/dtheta (central differences).
+
+A positive quantity v (a ``log_scale`` parameter, a positive property) gets its interval on the
+log scale, SE(ln v) = SE(v) / v:  [v exp(-q SE/v), v exp(+q SE/v)], never reaching zero (a lower
+end that underflows, e.g. an infinite SE, is stored as the smallest normal float); others get
+v -+ q SE.
 """
 from __future__ import annotations
 
@@ -33,9 +38,31 @@ class Uncertainty:
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.standard_errors / np.abs(values)
 
-    def intervals(self, values: np.ndarray, level: float = 0.95) -> np.ndarray:
+    def intervals(self, values: np.ndarray, level: float = 0.95, positive=None) -> np.ndarray:
+        """(n, 2) intervals; ``positive``: mask of the quantities taken on the log scale."""
         q = special.stdtrit(max(self.dof, 1), 0.5 + level / 2)  # Student-t quantile
-        return np.column_stack([values - q * self.standard_errors, values + q * self.standard_errors])
+        return confidence_intervals(values, self.standard_errors, q, positive)
+
+
+def confidence_intervals(values, standard_errors, q: float, positive=None) -> np.ndarray:
+    """(n, 2) intervals v -+ q SE, or v exp(-+q SE / v) where ``positive`` (and v > 0)."""
+    v = np.atleast_1d(np.asarray(values, dtype=float))
+    se = np.atleast_1d(np.asarray(standard_errors, dtype=float))
+    out = np.column_stack([v - q * se, v + q * se])
+    log = np.zeros(v.shape, bool) if positive is None else np.asarray(positive, bool) & (v > 0)
+    if log.any():
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            z = q * se[log] / v[log]
+            lo = np.maximum(v[log] * np.exp(-z), np.finfo(float).tiny)
+            hi = v[log] * np.exp(z)
+        lo[np.isnan(z)], hi[np.isnan(z)] = np.nan, np.nan
+        out[log] = np.column_stack([lo, hi])
+    return out
+
+
+def positive_interval(value: float, standard_error: float, q: float) -> list[float]:
+    """[lo, hi] of one positive quantity on the log scale (see :func:`confidence_intervals`)."""
+    return [float(x) for x in confidence_intervals([value], [standard_error], q, [True])[0]]
 
 
 def from_jacobian(
@@ -119,4 +146,5 @@ def property_covariance(to_properties, theta: np.ndarray, free: np.ndarray, cov_
         dn[i] -= h
         pu, pd = to_properties(up), to_properties(dn)
         G[:, j] = [(pu[k] - pd[k]) / (2 * h) for k in names]
-    return names, values, G @ cov_free @ G.T
+    with np.errstate(invalid="ignore"):  # an unseen direction (infinite variance) times a zero slope
+        return names, values, G @ cov_free @ G.T

@@ -68,11 +68,16 @@ class Parameter:
 
 @dataclass(frozen=True)
 class Property:
-    """One derived material property, e.g. an elastic modulus [Pa]."""
+    """One derived material property, e.g. an elastic modulus [Pa].
+
+    ``positive``: the property cannot be zero or negative (a modulus, a viscosity, a time); its
+    95 % interval is then computed on the log scale, v exp(-+q SE/v), and never contains zero.
+    """
 
     name: str
     unit: str
     description: str
+    positive: bool = True
 
 
 @dataclass

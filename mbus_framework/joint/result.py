@@ -57,11 +57,15 @@ class JointResult:
             rows.append({"record": "shared", "name": e.name, "value": e.value, "unit": e.unit, "std_error": e.std_error,
                          "ci95_low": e.ci95[0], "ci95_high": e.ci95[1], "truth": e.truth})
         q = 1.959963984540054
+        from mbus_framework.estimation.nuisance import DELAY
+        from mbus_framework.estimation.uncertainty import confidence_intervals
+
         for rec in self.records:
             for name, value in rec["per_record"].items():
                 se = rec["per_record_standard_errors"].get(name)
+                lo, hi = confidence_intervals([value], [se], q, [name != DELAY])[0]  # positive but the delay
                 rows.append({"record": rec["label"], "name": name, "value": value, "unit": "", "std_error": se,
-                             "ci95_low": value - q * se, "ci95_high": value + q * se,
+                             "ci95_low": float(lo), "ci95_high": float(hi),
                              "truth": rec.get("truth_nuisance", {}).get(name)})
         return pd.DataFrame(rows, columns=["record", "name", "value", "unit", "std_error", "ci95_low", "ci95_high",
                                            "truth"])

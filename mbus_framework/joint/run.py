@@ -19,6 +19,7 @@ from scipy import stats
 from mbus_framework import __version__
 from mbus_framework.errors import ConfigError
 from mbus_framework.estimation.acceptance import estimate_noise, judge
+from mbus_framework.estimation.uncertainty import positive_interval
 from mbus_framework.interfaces.backend import Measurement
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.joint.estimate import agreement, fit_joint, noise_level, precision_weighted
@@ -122,7 +123,7 @@ def build_document(jp: JointProblem, joint, test, singles, records, source: str,
         "uncertainty": {
             "method": "joint linearised: (J_w^T J_w)^-1, residuals weighted by each record's noise level",
             "property_standard_errors": {n: se[n] for n in shared},
-            "property_ci95": {n: [phi[n] - q * se[n], phi[n] + q * se[n]] for n in shared},
+            "property_ci95": {n: positive_interval(phi[n], se[n], q) for n in shared},
             "correlation": {"names": jp.names, "matrix": unc.correlation.tolist()},
             "condition": unc.condition,
         },

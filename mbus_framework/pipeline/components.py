@@ -12,7 +12,7 @@ from mbus_framework.interfaces.model import MediumModel
 from mbus_framework.interfaces.registry import Registry, default_registry
 from mbus_framework.interfaces.sample import Sample
 from mbus_framework.pipeline.config import RunConfig, validate_options
-from mbus_framework.suggest import did_you_mean
+from mbus_framework.pipeline.fixed_names import resolve_fixed
 
 
 @dataclass
@@ -53,7 +53,9 @@ def build_components(config: RunConfig, source: str = "<config>", registry: Regi
 
     sample = Sample(config.sample.length, config.sample.diameter, config.sample.density)
     model = named("model", config.model, "model", sample)
-    _check_parameter_names(model, config.model.fixed, "model.fixed", source)
+    fixed = resolve_fixed(model, config.model.fixed, "model.fixed", source)
+    if fixed != dict(config.model.fixed):  # property names given: every consumer sees parameters
+        config = config.model_copy(update={"model": config.model.model_copy(update={"fixed": fixed})})
     backend = named("backend", config.backend, "backend")
     if config.excitation is None and backend.needs_excitation:
         raise ConfigError(
@@ -78,13 +80,3 @@ def require_excitation(c: Components, what: str) -> Excitation:
     if c.excitation is None:
         raise ConfigError(f"{c.source}: excitation: {what} needs an excitation section (the designed input)")
     return c.excitation
-
-
-def _check_parameter_names(model: MediumModel, mapping: dict, where: str, source: str) -> None:
-    for name in mapping:
-        if name not in model.parameter_names:
-            hint = did_you_mean(name, model.parameter_names)
-            raise ConfigError(
-                f"{source}: {where}.{name}: not a parameter of model '{type(model).__name__}'{hint}; "
-                f"parameters: {', '.join(model.parameter_names)}"
-            )

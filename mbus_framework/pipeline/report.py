@@ -46,7 +46,9 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     lines.append(head)
     for name, value in result["properties"].items():
         row = f"  {name:<12}{value:>14.5g} {result['property_units'].get(name, ''):<8}"
-        if name in pci:
+        if name in result.get("fixed_properties", ()):
+            row += f"{'fixed':>28}"
+        elif name in pci:
             lo, hi = pci[name]
             row += f"{f'[{lo:.4g}, {hi:.4g}]':>28}"
         else:

@@ -11,9 +11,11 @@ from mbus_framework import __version__
 from mbus_framework.estimation.combinations import extreme_combinations
 from mbus_framework.estimation.nuisance import DELAY, GAIN
 from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrelation
-from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
+from mbus_framework.estimation.uncertainty import confidence_intervals, from_jacobian, property_covariance
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 from mbus_framework.pipeline.dispersion import dispersion_section
+from mbus_framework.pipeline.hints import record_hints
+from mbus_framework.pipeline.units import apply_units
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -92,13 +94,20 @@ def build_result(
             dt=problem.dt,
         )
         free_values = theta[fit.free]
-        ci = unc.intervals(free_values)
+        positive = [p.log_scale for p, f in zip(problem.parameters, fit.free) if f]
+        ci = unc.intervals(free_values, positive=positive)
         model_free = fit.free[:n_model]
         in_model = np.flatnonzero(fit.free) < n_model  # free entries that are model parameters
         cov_model = unc.covariance[np.ix_(in_model, in_model)]
         pnames, pvalues, pcov = property_covariance(model.to_properties, theta[:n_model], model_free, cov_model)
         pse = np.sqrt(np.clip(np.diag(pcov), 0, None))
         qfac = float(special.stdtrit(unc.dof, 0.975))  # the same Student-t quantile as the parameters' CIs
+        ppos = {p.name: p.positive for p in model.properties}
+        pci = confidence_intervals(pvalues, pse, qfac, [ppos.get(n, False) for n in pnames])
+        # a property that moves with no free parameter (set by model.fixed) is fixed, not [v, v]
+        held = {n for n, s in zip(pnames, pse) if s == 0.0} if problem.fixed else set()
+        if held:
+            result["fixed_properties"] = [n for n in pnames if n in held]
         dispersion_cov = (cov_model, model_free)
         result["uncertainty"] = {
             "method": (
@@ -112,8 +121,8 @@ def build_result(
             "relative_standard_errors": dict(zip(names, unc.relative_standard_errors(free_values))),
             "ci95": {n: list(b) for n, b in zip(names, ci)},
             "correlation": {"names": names, "matrix": unc.correlation.tolist()},
-            "property_standard_errors": dict(zip(pnames, pse)),
-            "property_ci95": {n: [v - qfac * s, v + qfac * s] for n, v, s in zip(pnames, pvalues, pse)},
+            "property_standard_errors": {n: s for n, s in zip(pnames, pse) if n not in held},
+            "property_ci95": {n: [float(lo), float(hi)] for n, (lo, hi) in zip(pnames, pci) if n not in held},
         }
     cov, free_model = dispersion_cov
     section = dispersion_section(model, theta[:n_model], problem.u, problem.dt, free_model, cov)
@@ -139,10 +148,12 @@ def build_result(
         result["compensation"] = compensation
     whiteness = residual_autocorrelation(fit.residuals)
     result["fit"]["residual_autocorrelation"] = whiteness
-    measured = measurement_warnings(m)
+    measured = measurement_warnings(m) + record_hints(m)  # hints: wrong time unit, swapped channels
     result["warnings"] = measured + gate_warnings(result, problem, fit, c.config.identifiability.min_explained_variance,
                                             c.config.identifiability.precise_relative_se)
     result["warnings"] += identifiability_warnings(result, c.config.identifiability, fit)
+    nuis = problem.nuisance
+    apply_units(result, m.meta, nuis.estimate_gain or nuis.gain != 1.0, GAIN)
     result["warnings"] += profile_warnings(result, problem, fit, model, c.config.uncertainty)
     if noise_filter is None and whiteness > c.config.identifiability.max_residual_autocorrelation:
         result["warnings"].insert(

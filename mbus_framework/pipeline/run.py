@@ -70,7 +70,9 @@ def acquire(c: Components, run_dir: Path, waveform: Waveform | None) -> Measurem
     ``waveform`` is the designed excitation, or None when the backend reads the input."""
     context = AcquisitionContext(waveform, c.sample, c.model, c.registry, run_dir, c.source)
     m = limits.checked_measurement(c.backend.acquire(context), c)
-    save_measurement(run_dir, m)
+    from mbus_framework.pipeline.input_files import input_files
+
+    save_measurement(run_dir, m, input_files(c.config.model_dump(mode="json")))
     return m
 
 
@@ -203,10 +205,14 @@ def write_config(run_dir: Path, config: RunConfig) -> None:
     atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
 
 
-def save_measurement(run_dir: Path, m: Measurement) -> None:
-    """The record and its metadata, written before anything is fitted."""
+def save_measurement(run_dir: Path, m: Measurement, inputs: list | None = None) -> None:
+    """The record and its metadata, written before anything is fitted; ``inputs``: the files the
+    config names, [{key, path, sha256}] (:mod:`~mbus_framework.pipeline.input_files`)."""
     write_waveforms(run_dir / MEASUREMENT_FILE, m.t, m.u, m.y)
-    atomic_write_json(run_dir / "measurement.json", {"truth": m.truth, "meta": m.meta, "n_samples": len(m.t), "dt_s": m.dt})
+    doc = {"truth": m.truth, "meta": m.meta, "n_samples": len(m.t), "dt_s": m.dt}
+    if inputs:
+        doc["inputs"] = inputs
+    atomic_write_json(run_dir / "measurement.json", doc)
 
 
 def execute(

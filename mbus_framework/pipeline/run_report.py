@@ -29,7 +29,7 @@ def property_rows(result: dict[str, Any]) -> list[list[Any]]:
     truth = result.get("truth_properties", {})
     rows = []
     for name, value in result["properties"].items():
-        lo, hi = ci.get(name, ("", ""))
+        lo, hi = ("fixed", "") if name in result.get("fixed_properties", ()) else ci.get(name, ("", ""))
         rel = 100 * se[name] / abs(value) if name in se and value else ""
         rows.append([name, value, result.get("property_units", {}).get(name, ""), lo, hi, rel,
                      truth.get(name, ""), _error(value, truth.get(name))])

@@ -343,7 +343,7 @@ def run_comparison(
             initial = None
             if config.model.initial:
                 initial = c.model.theta_from_mapping(config.model.initial, f"{source}: model.initial")
-            candidates.append(Candidate(name, c.model, initial, dict(config.model.fixed)))
+            candidates.append(Candidate(name, c.model, initial, dict(c.config.model.fixed)))
         else:
             candidates.append(Candidate(name, build_candidate(registry, name, c.sample, config.model.options, source)))
     waveform = designed_waveform(c)

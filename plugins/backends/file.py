@@ -92,6 +92,8 @@ class FileOptions(TableOptions):
         None, description="alignment/averaging/gains for GDS CSV pairs and lab runs (default: as saved)")
     counts_per_division: float | None = Field(
         None, gt=0, description="lab runs: rescale the saved raw codes with this factor (default: as saved)")
+    units: dict[Literal["u", "y"], str] | None = Field(
+        None, description="units of the record's input and output (e.g. {u: V, y: V}); overrides the file's")
 
 
 def read_record(path: str | Path, table: TableOptions | None = None) -> Measurement:
@@ -224,7 +226,20 @@ def read_gds_pair(u_path: Path, y_path: Path | None, reference: Reference | None
     m = check_record(u_path, t, uu, yy)
     m.meta.update(meta, source=str(u_path), response_source=str(y_path), layout=u.layout,
                   u_header=u.header, y_header=y.header)
+    given = processing.model_fields_set  # a gain given converts its channel to newtons
+    units = {c: "N" if f"{c}_gain" in given else _vertical_units(trace.header)
+             for c, trace in (("u", u), ("y", y))}
+    if any(units.values()):
+        m.meta["units"] = {c: v or "N" for c, v in units.items()}
+        m.meta["units_source"] = f"the scope files' Vertical Units ({u_path.name}, {y_path.name})"
     return m
+
+
+def _vertical_units(header: dict[str, str]) -> str | None:
+    for key, value in header.items():
+        if key.strip().lower() == "vertical units" and value.strip():
+            return value.strip()
+    return None
 
 
 def read_lab_run(path: Path, context_reference: Reference | None, processing: ProcessingOptions | None,
@@ -282,6 +297,23 @@ class FileBackend(Backend):
         if fmt in ("gds_csv", "lab_run", "run") and "pretrigger" in o.model_fields_set:
             raise DataError(f"{path}: backend.options.pretrigger applies to t,u,y and .mat files; a {fmt} record "
                             f"is aligned by backend.options.processing.align")
+        return self._with_units(self._read(path, fmt, reference, context))
+
+    def _with_units(self, m: Measurement) -> Measurement:
+        """``meta.units`` of u and y: the file's (a units row, ``t [s]``-style headers, a scope's
+        ``Vertical Units`` unless a gain converts the channel to newtons), then ``units``."""
+        units = {k: v for k, v in (m.meta.get("units") or {}).items()}
+        if self.options.units:
+            units.update(self.options.units)
+            m.meta["units_source"] = "backend.options.units"
+        elif units:
+            m.meta.setdefault("units_source", str(m.meta.get("source") or "the record"))
+        if units:
+            m.meta["units"] = units
+        return m
+
+    def _read(self, path: Path, fmt: str, reference: Reference | None, context) -> Measurement:
+        o = self.options
         if fmt == "gds_csv":
             y_path = self._resolve(o.response_path, context) if o.response_path else None
             return read_gds_pair(path, y_path, reference, o.processing or ProcessingOptions())
