@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from mbus_framework import __version__
 from mbus_framework.errors import ConfigError
@@ -104,7 +104,7 @@ def start(jp: JointProblem, singles) -> np.ndarray:
 def build_document(jp: JointProblem, joint, test, singles, records, source: str, title: str | None) -> dict[str, Any]:
     unc = joint.uncertainty
     se = dict(zip(jp.names, map(float, unc.standard_errors)))
-    q = float(stats.norm.ppf(0.975))  # the noise levels are taken as known: normal quantile
+    q = float(special.ndtri(0.975))  # the noise levels are taken as known: normal quantile
     phi = dict(zip(jp.names, map(float, joint.phi)))
     units = {s.label: s.unit for s in jp.slots}
     shared = {n: phi[n] for n in jp.spec.shared}
