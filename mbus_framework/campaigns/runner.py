@@ -197,7 +197,7 @@ def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: fl
         samples = aggregate_replicates(result.table, ["sample_id", *spec.groups], quantities)
         result.files.update(write_table(samples, out, "samples"))
     if len(result.table):
-        result.report = group_report(result.table, spec.groups, out, campaign.title)
+        result.report = group_report(result.table, spec.groups, out, campaign.title, units=result.tasks[0].units)
         result.files.update(result.report.files)
         result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
     result.wall_time_s = time.perf_counter() - t0
@@ -220,6 +220,7 @@ def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float, e
         "covariates": c.spec.covariates,
         "replicates": c.spec.replicates,
         "n_fits": len(result.tasks),
+        "units": dict(result.tasks[0].units) if result.tasks else {},
         "fitted": len(result.fitted),
         "reused": len(result.reused),
         "failed": len(result.failed) if table is not None else None,

@@ -14,6 +14,7 @@ from mbus_framework.estimation.strategy import at_box_edge, residual_autocorrela
 from mbus_framework.estimation.uncertainty import from_jacobian, property_covariance
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 from mbus_framework.pipeline.dispersion import dispersion_section
+from mbus_framework.pipeline.units import record_units
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -79,6 +80,7 @@ def build_result(
         "excitation": {"name": c.config.excitation.name if c.config.excitation else "recorded",
                        **(waveform.info if waveform is not None else {})},
         "files": {"measurement": "measurement.csv", "measurement_meta": "measurement.json"},
+        "record_units": record_units(m.meta, compensation),
     }
     dispersion_cov = (None, None)  # (covariance, free mask) of the model parameters, when known
     if fit.jacobian is not None and fit.free is not None and fit.free.any():

@@ -322,6 +322,8 @@ def run_comparison(
     import yaml
 
     from mbus_framework.engine.control_interop import write_bode_plot
+    from mbus_framework.estimation.spectral import excited_band
+    from mbus_framework.pipeline.units import record_units
     from mbus_framework.interfaces.registry import default_registry
     from mbus_framework.pipeline.config import load_config
     from mbus_framework.pipeline.run import acquire, build_components, designed_waveform, new_run_dir
@@ -360,7 +362,10 @@ def run_comparison(
     if (plots if plots is not None else config.output.plots) and table.best is not None:
         best = table.row(table.best)
         others = [(r.name, r.model, r.fit.theta) for r in table.rows if r is not best and r.fit is not None]
+        units = record_units(measurement.meta, data.meta.get("compensation"))
         write_bode_plot(run_dir / "comparison_bode.png", best.model, best.fit.theta, data.u, data.y, data.dt,
-                        label=f"{best.name} (best)", extra_models=others, title="model comparison")
+                        label=f"{best.name} (best)", extra_models=others,
+                        title="model comparison over the record's excited band",
+                        units=(units["u"], units["y"]), band=excited_band(data.u, data.dt))
     write_folder_report(run_dir, "mbus model comparison", text, source)
     return table, text
