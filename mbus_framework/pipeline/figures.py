@@ -22,7 +22,7 @@ from scipy import stats
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.interfaces.excitation import Waveform, power_spectrum
 from mbus_framework.pipeline.recorded_input import welch_spectrum
-from mbus_framework.pipeline.units import UNKNOWN, bracket
+from mbus_framework.pipeline.units import UNKNOWN, label_axis
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -133,15 +133,15 @@ def fit_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     t_us = d.t * 1e6
     band = ", band-limited" if d.band_limited else ""
-    ax1.plot(t_us, d.y, lw=0.7, color="0.55", label=f"measured{band}")
-    ax1.plot(t_us, d.yhat, lw=0.9, color="C3", label=f"model{band}")
-    ax1.set_ylabel(f"output y {bracket(d.y_unit)}")
+    k = label_axis(ax1, "y", "output y", d.y, d.y_unit)
+    ax1.plot(t_us, d.y / k, lw=0.7, color="0.55", label=f"measured{band}")
+    ax1.plot(t_us, d.yhat / k, lw=0.9, color="C3", label=f"model{band}")
     ax1.legend(loc="upper right")
     what = "measured vs predicted output" + (" (band-limited)" if d.band_limited else "")
     title = wrapped(fig, f"{d.title}: {what}" if d.title else what)
     ax1.set_title(title)
-    ax2.plot(t_us, d.residuals, lw=0.6, color="C0")
-    ax2.set_ylabel(f"residual {bracket(d.y_unit)}")
+    k = label_axis(ax2, "y", "residual", d.residuals, d.y_unit)
+    ax2.plot(t_us, d.residuals / k, lw=0.6, color="C0")
     ax2.set_xlabel("time [us]")
     _margins(fig, hspace=0.08, left=0.1, top=0.93 - 0.035 * title.count("\n"))
     return fig
@@ -274,7 +274,8 @@ def convergence_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     ax2.set_ylabel(f"cost 1/2 sum r^2 [{unit}^2]")
     ax2.set_title("band stages: filtered residual", fontsize=9)
     fig.suptitle("convergence of the winning start (Fig. 3.8); grey lines: continuation stages")
-    _margins(fig, left=0.08, right=0.985, top=0.86, bottom=0.13, wspace=0.3)
+    ax1.ticklabel_format(axis="y", useOffset=False)
+    _margins(fig, left=0.085, right=0.985, top=0.86, bottom=0.13, wspace=0.4)
     return fig
 
 

@@ -46,7 +46,7 @@ def record_units(meta: Mapping[str, Any], compensation: Mapping[str, Any] | None
 
 def bracket(unit: str) -> str:
     """``"[V]"`` for a unit, ``"(recorded units)"`` when it is not known."""
-    return f"({unit})" if unit == UNKNOWN else f"[{unit}]"
+    return f"({unit})" if UNKNOWN in unit else f"[{unit}]"
 
 
 _PREFIX = {-12: "p", -9: "n", -6: "u", -3: "m", 0: "", 3: "k", 6: "M", 9: "G", 12: "T"}
