@@ -152,6 +152,20 @@ def test_scaled_units():
     assert scaled_unit([1080.0], "kg/m^3") == (1e3, "1e3 kg/m^3")
 
 
+def test_element_sweep_figure_in_gigapascal():
+    """The sweep's panels from estimates of order 1e10 Pa: GPa on the axis, no "x1e10"."""
+    from mbus_framework.studies.element_sweep import _sweep_figure
+
+    ok = [{"n_elements": n, "properties": {"E_sigma": 2.4e10 * (1 + 0.1 / n), "eta_sigma": 7.2e3 * (1 - 0.1 / n)},
+           "property_standard_errors": {"E_sigma": 1e8, "eta_sigma": 50.0}} for n in (2, 4, 8)]
+    fig = _sweep_figure(ok, ["E_sigma", "eta_sigma"], {"E_sigma": 2.4e10}, {"E_sigma": 4},
+                        {"E_sigma": "Pa", "eta_sigma": "Pa s"})
+    assert [ax.get_ylabel() for ax in fig.axes[:2]] == ["E_sigma [GPa]", "eta_sigma [kPa s]"]
+    np.testing.assert_allclose(fig.axes[0].lines[0].get_ydata(), [24 * (1 + 0.1 / n) for n in (2, 4, 8)])
+    assert not layout_problems(fig)
+
+
+@pytest.mark.slow
 def test_element_sweep_figure(tmp_path, saved):
     from mbus_framework.studies.runner import run_study
 
