@@ -190,8 +190,11 @@ def _main(args: argparse.Namespace) -> int:
         from mbus_framework.api import run_config
         from mbus_framework.pipeline.progress import make_progress
 
+        from mbus_framework.pipeline.progress import make_long_progress
+
         progress = None if args.quiet else make_progress()
-        special = _special_mode(args, progress)
+        # a study runs for minutes: progress lines with an ETA in logs too, not only on a terminal
+        special = _special_mode(args, None if args.quiet else (make_long_progress() if args.study else progress))
         if special is not None:
             print(special)
             return 0

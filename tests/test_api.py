@@ -108,11 +108,16 @@ def test_notebook_display_is_html_with_tables(result):
 
 
 def test_plot_methods_draw_the_fitted_arrays(result, record):
+    from mbus_framework.pipeline.units import bracket, scaled_unit
+
     fig = result.plot_fit()
     top = fig.axes[0]
     measured, model = top.lines[0].get_ydata(), top.lines[1].get_ydata()
-    np.testing.assert_array_equal(measured, record[2])
-    assert np.sqrt(np.mean((measured - model) ** 2)) == pytest.approx(
+    # drawn in the labelled (scaled) unit of the record's output
+    k, unit = scaled_unit(record[2], result.document["record_units"]["y"])
+    assert top.get_ylabel() == f"output y {bracket(unit)}"
+    np.testing.assert_array_equal(measured, record[2] / k)
+    assert k * np.sqrt(np.mean((measured - model) ** 2)) == pytest.approx(
         result.fit_quality["nrmse"] * np.sqrt(np.mean(record[2] ** 2)), rel=1e-9)
     for method in ("plot_residual_correlation", "plot_frequency_response", "plot_excitation", "plot_convergence"):
         assert getattr(result, method)().axes, method

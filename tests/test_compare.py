@@ -9,10 +9,12 @@ import yaml
 
 from mbus_framework.studies.compare import (
     Candidate,
+    ComparisonTable,
     ComparisonData,
     compare_models,
     information_criteria,
     ljung_box,
+    ModelRow,
     render_table,
     run_comparison,
 )
@@ -166,3 +168,46 @@ def test_mbus_run_compare_models_flag(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert any(line.startswith("* sls") for line in printed.splitlines())
     assert (out / "comparison.json").exists()
+
+
+def test_render_table_shows_properties_units_ses_and_warnings():
+    row = ModelRow("sls", 2, 100, cost=1.0, aic=1.0, bic=1.0, delta=0.0, success=True, best=True,
+                   parameters={"k_sigma": 2.0e8, "b1_sigma": 3.0}, standard_errors={"k_sigma": 1e6, "b1_sigma": 1.98},
+                   parameter_units={"k_sigma": "N/m", "b1_sigma": "N s/m"},
+                   properties={"E_sigma": 2.4e10}, property_units={"E_sigma": "Pa"},
+                   property_standard_errors={"E_sigma": 1.2e8},
+                   warnings=["practically unidentifiable, standard error above 20 % of the estimate: b1_sigma (66 %)"])
+    text = render_table(ComparisonTable([row], "bic", 100, "sls"))
+    assert "k_sigma" in text and " N/m " in text and "(0.5 %)" in text and "(66 %)" in text
+    assert any(line.split()[:5] == ["E_sigma", "2.4e+10", "+-", "1.2e+08", "Pa"] for line in text.splitlines())
+    assert "    warning: practically unidentifiable, standard error above 20 % of the estimate: b1_sigma (66 %)" in text
+
+
+@pytest.mark.slow
+def test_comparison_reports_properties_units_and_the_single_run_warnings(tmp_path):
+    """Each model's properties carry units and standard errors, and its warnings are those a
+    single run of it gives: with a 0.01 % limit on the relative SE every parameter is flagged,
+    in the comparison as in ``mbus-run`` of the same config."""
+    from mbus_framework.pipeline.run import execute
+
+    path = _config(tmp_path)
+    strict = ["identifiability.max_relative_se=1e-4", "solver.options.strategy.n_starts=1"]
+    table, text = run_comparison(path, ["sls", "kelvin_voigt"], strict, out_dir=tmp_path / "cmp")
+    sls = table.row("sls")
+    assert sls.property_units["E_sigma"] == "Pa" and sls.property_units["eta1_sigma"] == "Pa s"
+    assert set(sls.property_standard_errors) == set(sls.properties)
+    assert all(np.isfinite(v) and v > 0 for v in sls.property_standard_errors.values())
+    flagged = [w for w in sls.warnings if w.startswith("practically unidentifiable")]
+    assert len(flagged) == 1 and all(n in flagged[0] for n in sls.standard_errors)
+    assert f"    warning: {flagged[0]}" in text
+    e = sls.properties["E_sigma"]
+    assert any(line.split()[:2] == ["E_sigma", f"{e:.6g}"] and " Pa " in line for line in text.splitlines())
+    single = execute(path, strict, tmp_path / "single", plots=False)
+    single_flagged = [w for w in single.result["warnings"] if w.startswith("practically unidentifiable")]
+    assert len(single_flagged) == 1
+    assert all(n in single_flagged[0] for n in sls.standard_errors)
+    doc = json.loads((tmp_path / "cmp" / "comparison.json").read_text())
+    assert doc["models"][0]["warnings"] == sls.warnings and doc["models"][0]["property_units"]["E_sigma"] == "Pa"
+    # the flag follows the limit: at the default 20 % the well-identified kelvin_voigt stiffnesses pass
+    kv = table.row("kelvin_voigt")
+    assert all(100 * kv.relative_standard_errors()[n] > 0.01 for n in kv.standard_errors)

@@ -148,7 +148,7 @@ def test_non_utf8_file(tmp_path):
 # ---------------------------------------------------------------------------------------
 # Stage 1: core structure
 # ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("section", ["sample", "model", "backend"])
+@pytest.mark.parametrize("section", ["sample", "backend"])
 def test_missing_section(tmp_path, section):
     msg = config_error(load_config, write(tmp_path, variant(**{section: None})))
     assert f"{section}: required key is missing" in msg

@@ -192,7 +192,7 @@ def test_scope_record_in_volts_without_gains_warns_and_labels(tmp_path, capsys):
     out = capsys.readouterr().out
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert [w for w in r["warnings"] if w.startswith("units:")] == [r["warnings"][0]]
-    assert r["property_units"]["E_sigma"] == "Pa (V/V)" and r["record_units"] == {"u": "V", "y": "V"}
+    assert r["property_units"]["E_sigma"] == "Pa (V/V)" and (r["record_units"]["u"], r["record_units"]["y"]) == ("V", "V")
     assert "Pa (V/V)" in out and "WARNING: units:" in out
 
 

@@ -45,4 +45,4 @@ def fit_data_from_run(run_dir: Path, document: dict[str, Any]) -> FitData | None
         return None
     return FitData(problem.t, problem.u, problem.y, yhat, problem.names, read_trace(run_dir / "trace.csv"),
                    designed_waveform(c), document.get("title") or str(document.get("config") or ""),
-                   document.get("dispersion"))
+                   document.get("dispersion"), document.get("record_units") or {})

@@ -52,6 +52,7 @@ class SampleTask:
     sample: dict[str, float] = field(default_factory=dict)
     inputs: tuple[tuple[str, str], ...] = ()
     attempt: str = ""
+    units: dict[str, str] = field(default_factory=dict)  # parameter and property name -> unit
 
 
 def run_label(sample_id: str, replicate: int | None = None) -> str:
@@ -208,5 +209,6 @@ def _task(campaign: Campaign, rows: list[SheetRow], resolved: list[tuple[dict, A
         covariates=dict(first.covariates),
         parameter_names=tuple(model.parameter_names),
         property_names=tuple(p.name for p in model.properties),
+        units={p.name: p.unit for p in [*model.parameters, *model.properties]},
         sample=dict(config["sample"]),
     )

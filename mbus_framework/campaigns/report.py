@@ -34,15 +34,20 @@ def group_report(
     title: str = "",
     quantities: Sequence[str] | None = None,
     plots: bool = True,
+    units: dict[str, str] | None = None,
 ) -> GroupReport:
     """Summarise ``table`` by ``groups`` and write ``group_summary.csv``, ``group_summary.txt``
     and ``plots/<property>_by_group.png`` into ``out_dir``.
 
     ``table`` is a DataFrame, a properties .csv/.parquet file, or a campaign folder (its
     ``properties.parquet``; ``groups``, ``title`` and ``out_dir`` then default to the campaign's).
-    ``quantities`` defaults to the table's material properties.
+    ``quantities`` defaults to the table's material properties; ``units`` (name -> unit, e.g.
+    ``{"E_sigma": "Pa"}``) labels the plots' axes (a campaign folder's come from campaign.json).
     """
     df, groups, out_dir, title = _inputs(table, groups, out_dir, title)
+    if units is None and isinstance(table, (str, Path)) and Path(table).is_dir():
+        meta_file = Path(table) / CAMPAIGN_JSON
+        units = json.loads(meta_file.read_text(encoding="utf-8")).get("units") if meta_file.is_file() else None
     quantities = list(quantities or property_names(df))
     summary = group_summary(df, groups, quantities)
     text = summary_text(summary, groups, quantities, title or "campaign")
@@ -53,7 +58,7 @@ def group_report(
                                                                summary.to_csv(index=False).encode("utf-8"))
         report.files["group_summary_text"] = atomic_write_text(out / "group_summary.txt", text + "\n")
         if plots and len(df):
-            report.plots = property_plots(df, summary, groups, quantities, out / "plots", title)
+            report.plots = property_plots(df, summary, groups, quantities, out / "plots", title, units or {})
     return report
 
 

@@ -204,7 +204,7 @@ def _finish(result: CampaignResult, rows: dict[str, dict], cluster: dict, t0: fl
 
         result.files.update(write_table(pd.DataFrame(per_replicate), out, "replicates"))
     if len(result.table):
-        result.report = group_report(result.table, spec.groups, out, campaign.title)
+        result.report = group_report(result.table, spec.groups, out, campaign.title, units=result.tasks[0].units)
         result.files.update(result.report.files)
         result.files.update({f"plot_{k}": v for k, v in result.report.plots.items()})
     result.wall_time_s = time.perf_counter() - t0
@@ -228,6 +228,7 @@ def _write_meta(result: CampaignResult, cluster: dict, status: str, t0: float, e
         "replicates": c.spec.replicates,
         **({"replicates_chosen": _choices(table)} if table is not None and "replicates_reason" in table else {}),
         "n_fits": len(result.tasks),
+        "units": dict(result.tasks[0].units) if result.tasks else {},
         "fitted": len(result.fitted),
         "reused": len(result.reused),
         "failed": len(result.failed) if table is not None else None,

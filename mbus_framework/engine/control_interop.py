@@ -63,6 +63,13 @@ class TransferEstimate:
     f: np.ndarray
     H: np.ndarray
     coherence: np.ndarray
+    input_power: np.ndarray | None = None  # Welch P_uu [u^2/Hz] at f
+
+    def within(self, lo: float, hi: float) -> "TransferEstimate":
+        """The estimate at lo <= f <= hi."""
+        k = (self.f >= lo) & (self.f <= hi)
+        return TransferEstimate(self.f[k], self.H[k], self.coherence[k],
+                                None if self.input_power is None else self.input_power[k])
 
 
 def transfer_function_estimate(u, y, dt: float, nperseg: int | None = None) -> TransferEstimate:
@@ -83,17 +90,22 @@ def transfer_function_estimate(u, y, dt: float, nperseg: int | None = None) -> T
         H = Puy / Puu
         coh = np.abs(Puy) ** 2 / (Puu * Pyy)
     keep = f > 0
-    return TransferEstimate(f[keep], H[keep], np.nan_to_num(coh[keep]))
+    return TransferEstimate(f[keep], H[keep], np.nan_to_num(coh[keep]), Puu[keep])
 
 
 def bode_figure(model: MediumModel, theta, u=None, y=None, dt: float | None = None, f=None,
-                title: str | None = None, label: str = "fitted model", extra_models=()):
+                title: str | None = None, label: str = "fitted model", extra_models=(),
+                units: tuple[str, str] | None = None, band: tuple[float, float] | None = None):
     """Bode diagram (magnitude in dB and unwrapped phase in degrees) of the model.
 
     With a record (u, y, dt) the measured H1 estimate is drawn underneath (points with
-    coherence < 0.5 faded) and the model is evaluated ZOH-discretely at dt, which is the
-    like-for-like comparison for sampled data. ``extra_models`` is a sequence of
-    (label, model, theta) drawn in addition (e.g. the other models of a comparison).
+    coherence < 0.5 faded, and said so in the legend) and the model is evaluated ZOH-discretely
+    at dt, which is the like-for-like comparison for sampled data. ``band`` (f_lo, f_hi) [Hz]
+    limits the frequency axis, e.g. to the record's excited band
+    (:func:`mbus_framework.estimation.spectral.excited_band`): outside it neither the H1 estimate
+    nor the fit says anything. ``extra_models`` is a sequence of
+    (label, model, theta) drawn in addition (e.g. the other models of a comparison);
+    ``units`` the (input, output) units for the magnitude label.
     Returns a matplotlib ``Figure`` on an Agg canvas.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -102,31 +114,36 @@ def bode_figure(model: MediumModel, theta, u=None, y=None, dt: float | None = No
     est = None
     if u is not None and y is not None and dt is not None:
         est = transfer_function_estimate(u, y, dt)
+        if band is not None:
+            est = est.within(*band)
     if f is None:
         if est is not None:
             f = est.f
         else:
             f = np.logspace(3, 7, 400)
     f = np.asarray(f, dtype=float)
+    if band is not None:
+        f = f[(f >= band[0]) & (f <= band[1])]
     fig = Figure(figsize=(7.0, 6.0))
     FigureCanvasAgg(fig)
     ax_m, ax_p = fig.subplots(2, 1, sharex=True)
     if est is not None:
         good = est.coherence >= 0.5
-        for mask, alpha, lab in ((good, 0.9, "measured (H1 estimate)"), (~good, 0.25, None)):
+        for mask, alpha, lab in ((good, 0.9, "measured (H1 estimate)"), (~good, 0.25, "measured, coherence < 0.5")):
             if np.any(mask):
-                ax_m.semilogx(est.f[mask], 20 * np.log10(np.abs(est.H[mask])), ".", ms=3, color="0.35",
+                ax_m.semilogx(est.f[mask] / 1e6, 20 * np.log10(np.abs(est.H[mask])), ".", ms=3, color="0.35",
                               alpha=alpha, label=lab)
-                ax_p.semilogx(est.f[mask], np.degrees(np.unwrap(np.angle(est.H)))[mask], ".", ms=3,
+                ax_p.semilogx(est.f[mask] / 1e6, np.degrees(np.unwrap(np.angle(est.H)))[mask], ".", ms=3,
                               color="0.35", alpha=alpha)
     curves = [(label, model, theta), *extra_models]
     for lab, m, th in curves:
         H = frequency_response(m, th, f, dt)
-        ax_m.semilogx(f, 20 * np.log10(np.abs(H)), lw=1.4, label=lab)
-        ax_p.semilogx(f, np.degrees(np.unwrap(np.angle(H))), lw=1.4)
-    ax_m.set_ylabel("|H| [dB]")
+        ax_m.semilogx(f / 1e6, 20 * np.log10(np.abs(H)), lw=1.4, label=lab)
+        ax_p.semilogx(f / 1e6, np.degrees(np.unwrap(np.angle(H))), lw=1.4)
+    known = units is not None and "recorded units" not in units
+    ax_m.set_ylabel(f"|H| [dB re 1 {units[1]}/{units[0]}]" if known else "|H| [dB]")
     ax_p.set_ylabel("phase [deg]")
-    ax_p.set_xlabel("frequency [Hz]")
+    ax_p.set_xlabel("frequency [MHz]")
     ax_m.grid(True, which="both", alpha=0.3)
     ax_p.grid(True, which="both", alpha=0.3)
     ax_m.legend(loc="best", fontsize=8)

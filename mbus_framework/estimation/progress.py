@@ -10,4 +10,7 @@ class Progress:
 
     def advance(self, steps: int = 1, note: str = "") -> None: ...
 
+    def set_total(self, total: int) -> None:
+        """The work turned out larger (or smaller) than announced at :meth:`start`."""
+
     def stop(self) -> None: ...

@@ -301,6 +301,13 @@ class _Search:
         self.report.poles = {"candidates": [dict(zip(self.names, map(float, c.theta))) for c in found]}
         return found
 
+    def expect(self, more: int) -> None:
+        """Raise the progress total to the starts done plus ``more``: the later phases (record
+        poles, fallback) add starts beyond ``n_starts``, so the counter never passes its total."""
+        set_total = getattr(self.progress, "set_total", None)
+        if set_total is not None and more > 0:
+            set_total(len(self.report.starts) + more)
+
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
                   explore: bool = False, windows: int = 0) -> bool:
         """One time-domain local fit (band stages or ``windows`` record windows, then the full
@@ -381,6 +388,7 @@ class _Search:
         free = p.free & np.array([q.log_scale for q in p.parameters])
         design = gs.sobol(max(int(free.sum()), 1), o.fallback_starts, o.seed)
         anchors = self.anchors()
+        self.expect(len(design))
         for i, row in enumerate(design):
             if out_of_time():
                 break
@@ -509,7 +517,9 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
                 return True
     # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
     if o.global_search and o.pole_starts and spectral_ok and not out_of_time():
-        for c in s.pole_candidates():
+        poles = s.pole_candidates()
+        s.expect(len(poles))
+        for c in poles:
             if out_of_time():
                 break
             if s.best is not None and _near(c.theta, s.best.theta, 1e-3):

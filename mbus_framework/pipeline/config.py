@@ -81,7 +81,10 @@ class SolverRef(PluginRef):
 
 
 class ModelConfig(PluginRef):
-    """``model``: the medium model to fit."""
+    """``model``: the medium model to fit; optional, ``name`` defaults to ``kelvin_voigt`` (as
+    the Python API's ``fit``)."""
+
+    name: str = "kelvin_voigt"
 
     initial: dict[str, float] | None = Field(None, description="initial parameters (or properties)")
     fixed: dict[str, float] = Field(default_factory=dict, description="parameters held at these values")
@@ -170,7 +173,7 @@ class RunConfig(_Strict):
 
     title: str | None = None
     sample: SampleConfig
-    model: ModelConfig
+    model: ModelConfig = Field(default_factory=ModelConfig)
     excitation: PluginRef | None = Field(
         None, description="designed input; optional when the backend reads the recorded input (file backend)"
     )
@@ -309,6 +312,10 @@ def format_validation_error(exc: ValidationError, root: type[BaseModel], prefix:
     kind = err["type"]
     if kind == "extra_forbidden":
         choices = _field_names(root, err["loc"][:-1])
+        if not choices:  # e.g. options for a plugin that has none (compensator 'none')
+            parent = path.rsplit(".", 1)[0] if "." in path else "this section"
+            why = " (the chosen plugin has no options)" if parent.endswith("options") else ""
+            return f"{path}: unknown key; {parent} takes no keys{why}{more}"
         hint = did_you_mean(loc[-1], choices) if len(loc[-1]) <= 60 else ""
         return f"{path}: unknown key{hint}; allowed: {', '.join(choices)}{more}"
     if kind == "missing":

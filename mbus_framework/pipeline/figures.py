@@ -22,6 +22,7 @@ from scipy import special
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.interfaces.excitation import Waveform, power_spectrum
 from mbus_framework.pipeline.recorded_input import welch_spectrum
+from mbus_framework.pipeline.units import UNKNOWN, label_axis
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -49,6 +50,19 @@ class FitData:
     designed: Waveform | None = None
     title: str = ""
     dispersion: dict[str, Any] | None = None  # result.json's ``dispersion`` section
+    units: dict[str, Any] = field(default_factory=dict)  # result.json's ``record_units`` section
+
+    @property
+    def y_unit(self) -> str:
+        return str(self.units.get("y") or UNKNOWN)
+
+    @property
+    def u_unit(self) -> str:
+        return str(self.units.get("u") or UNKNOWN)
+
+    @property
+    def band_limited(self) -> bool:
+        return bool(self.units.get("y_band_limited"))
 
     @property
     def residuals(self) -> np.ndarray:
@@ -60,9 +74,10 @@ class FitData:
 
     @classmethod
     def from_fit(cls, problem: "FitProblem", fit: "FitResult", designed: Waveform | None = None,
-                 title: str = "", dispersion: dict[str, Any] | None = None) -> "FitData":
+                 title: str = "", dispersion: dict[str, Any] | None = None,
+                 units: dict[str, Any] | None = None) -> "FitData":
         return cls(problem.t, problem.u, problem.y, problem.y - fit.residuals, list(fit.names),
-                   list(fit.trace), designed, title, dispersion)
+                   list(fit.trace), designed, title, dispersion, dict(units or {}))
 
 
 def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
@@ -102,20 +117,33 @@ def _margins(fig: "Figure", **kw: float) -> None:
     fig.subplots_adjust(**{"left": 0.09, "right": 0.98, "top": 0.93, "bottom": 0.1, "hspace": 0.35, **kw})
 
 
+def wrapped(fig: "Figure", text: str, fontsize: float = 12.0, share: float = 0.95) -> str:
+    """``text`` broken into lines that fit ``share`` of the figure's width (a character is
+    about 0.55 font sizes wide), so titles are never cut at the canvas edge."""
+    import textwrap
+
+    width = max(20, int(share * fig.get_figwidth() * 72 / (0.55 * fontsize)))
+    return "\n".join(textwrap.wrap(text, width)) or text
+
+
 def fit_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
-    """Measured vs predicted output, and the residual (Fig. 3.9)."""
+    """Measured vs predicted output, and the residual (Fig. 3.9), in the record's output unit;
+    a compensated output is marked band-limited (the fit sees it through the compensator's band)."""
     fig = _new(fig, (9, 6))
     ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     t_us = d.t * 1e6
-    ax1.plot(t_us, d.y, lw=0.7, color="0.55", label="measured")
-    ax1.plot(t_us, d.yhat, lw=0.9, color="C3", label="model")
-    ax1.set_ylabel("output y")
+    band = ", band-limited" if d.band_limited else ""
+    k = label_axis(ax1, "y", "output y", d.y, d.y_unit)
+    ax1.plot(t_us, d.y / k, lw=0.7, color="0.55", label=f"measured{band}")
+    ax1.plot(t_us, d.yhat / k, lw=0.9, color="C3", label=f"model{band}")
     ax1.legend(loc="upper right")
-    ax1.set_title(f"{d.title}: measured vs predicted output" if d.title else "measured vs predicted output")
-    ax2.plot(t_us, d.residuals, lw=0.6, color="C0")
-    ax2.set_ylabel("residual")
+    what = "measured vs predicted output" + (" (band-limited)" if d.band_limited else "")
+    title = wrapped(fig, f"{d.title}: {what}" if d.title else what)
+    ax1.set_title(title)
+    k = label_axis(ax2, "y", "residual", d.residuals, d.y_unit)
+    ax2.plot(t_us, d.residuals / k, lw=0.6, color="C0")
     ax2.set_xlabel("time [us]")
-    _margins(fig, hspace=0.08)
+    _margins(fig, hspace=0.08, left=0.1, top=0.93 - 0.035 * title.count("\n"))
     return fig
 
 
@@ -141,10 +169,10 @@ def correlation_figure(d: FitData, fig: "Figure | None" = None, lags: int = LAGS
         top = 1.25 * max(2 * bound, float(np.max(np.abs(vals))) if vals.size else 0.0)
         ax.set_ylim(-top, top)
     ax1.set_title("autocorrelation of the residual (lags 1-%d; r(0) = 1)" % lags)
-    ax1.set_ylabel("r_ee(k)")
+    ax1.set_ylabel("r_ee(k) [-]")
     ax1.legend(loc="upper right", fontsize=8)
     ax2.set_title("cross-correlation of input and residual")
-    ax2.set_ylabel("r_ue(k)")
+    ax2.set_ylabel("r_ue(k) [-]")
     ax2.set_xlabel("lag k [samples]")
     _margins(fig, hspace=0.45)
     return fig
@@ -179,7 +207,8 @@ def frequency_response_figure(d: FitData, fig: "Figure | None" = None) -> "Figur
     if np.any(good):
         top = float(np.nanmax(mag_m[good]))
         ax_m.set_ylim(top - 80, top + 10)
-    ax_m.set_ylabel("|H| [dB]")
+    per = f"{d.y_unit}/{d.u_unit}"
+    ax_m.set_ylabel(f"|H| [dB re 1 {per}]" if UNKNOWN not in (d.y_unit, d.u_unit) else "|H| [dB]")
     ax_p.set_ylabel("phase [deg]")
     ax_p.set_xlabel("frequency [MHz]")
     for ax in (ax_m, ax_p):
@@ -232,18 +261,21 @@ def convergence_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     final = np.where(theta[-1] != 0, theta[-1], 1.0)
     for i, n in enumerate(d.names[: theta.shape[1]]):
         ax1.plot(theta[:, i] / final[i], marker=".", label=n)
-    ax1.set_xlabel("iteration")
-    ax1.set_ylabel("parameter / final value")
+    ax1.set_xlabel("iteration [-]")
+    ax1.set_ylabel("parameter / final value [-]")
     ax1.legend(fontsize=8)
     ax2.semilogy(cost, marker=".")
     for k in range(1, len(stages)):
         if stages[k] != stages[k - 1]:
             for ax in (ax1, ax2):
                 ax.axvline(k - 0.5, color="0.8", lw=0.8)
-    ax2.set_xlabel("iteration")
-    ax2.set_ylabel("cost 1/2 sum r^2 (band stages: filtered)")
+    ax2.set_xlabel("iteration [-]")
+    unit = "recorded units" if d.y_unit == UNKNOWN else d.y_unit
+    ax2.set_ylabel(f"cost 1/2 sum r^2 [{unit}^2]")
+    ax2.set_title("band stages: filtered residual", fontsize=9)
     fig.suptitle("convergence of the winning start (Fig. 3.8); grey lines: continuation stages")
-    _margins(fig, left=0.07, top=0.88, bottom=0.13, wspace=0.28)
+    ax1.ticklabel_format(axis="y", useOffset=False)
+    _margins(fig, left=0.085, right=0.985, top=0.86, bottom=0.13, wspace=0.4)
     return fig
 
 

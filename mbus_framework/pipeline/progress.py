@@ -13,17 +13,20 @@ def interactive() -> bool:
 
 
 class RichProgress(Progress):
-    """A ``rich`` progress bar on stderr (one task at a time)."""
+    """A ``rich`` progress bar on stderr (one task at a time): done/total, elapsed, ETA."""
 
     def __init__(self) -> None:
         from rich.console import Console
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress as _P, TextColumn, TimeElapsedColumn
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress as _P, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
 
         self._bar = _P(
             TextColumn("{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
             TextColumn("{task.fields[note]}"),
             console=Console(stderr=True),
             transient=True,
@@ -37,6 +40,10 @@ class RichProgress(Progress):
     def advance(self, steps: int = 1, note: str = "") -> None:
         if self._task is not None:
             self._bar.update(self._task, advance=steps, note=note)
+
+    def set_total(self, total: int) -> None:
+        if self._task is not None:
+            self._bar.update(self._task, total=total)
 
     def stop(self) -> None:
         self._bar.stop()
@@ -83,6 +90,9 @@ class LineProgress(Progress):
             if 0 < self._done < self._total:
                 text += f", ETA {elapsed * (self._total - self._done) / self._done:.0f} s"
         print(f"{text}, {elapsed:.0f} s elapsed{f' ({note})' if note else ''}", file=self.stream or sys.stderr, flush=True)
+
+    def set_total(self, total: int) -> None:
+        self._total = total
 
     def stop(self) -> None:
         self._total = None

@@ -15,7 +15,7 @@ from mbus_framework.estimation.uncertainty import confidence_intervals, from_jac
 from mbus_framework.pipeline.confidence import gate_warnings, profile_warnings
 from mbus_framework.pipeline.dispersion import dispersion_section
 from mbus_framework.pipeline.hints import record_hints
-from mbus_framework.pipeline.units import apply_units
+from mbus_framework.pipeline.units import apply_units, record_units
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement
@@ -81,6 +81,7 @@ def build_result(
         "excitation": {"name": c.config.excitation.name if c.config.excitation else "recorded",
                        **(waveform.info if waveform is not None else {})},
         "files": {"measurement": "measurement.csv", "measurement_meta": "measurement.json"},
+        "record_units": record_units(m.meta, compensation),
     }
     dispersion_cov = (None, None)  # (covariance, free mask) of the model parameters, when known
     if fit.jacobian is not None and fit.free is not None and fit.free.any():

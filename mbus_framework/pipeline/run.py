@@ -52,7 +52,7 @@ class RunOutcome:
         if self.problem is None:
             raise ValueError("this outcome has no fitting problem")
         return FitData.from_fit(self.problem, self.fit, self.designed, self.components.config.title or self.components.source,
-                                self.result.get("dispersion"))
+                                self.result.get("dispersion"), self.result.get("record_units"))
 
 
 def new_run_dir(config: RunConfig, source: str) -> Path:

@@ -36,13 +36,23 @@ TMP_SUFFIX = ".tmp"
 """Suffix of the temporary files of atomic writes (``.<name>.<random>.tmp``)."""
 
 
+def _file_mode() -> int:
+    """The mode ``open()`` gives a new file: 0666 less the process umask (0644 with umask 022)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; parent folders are created."""
+    """Write ``data`` to ``path`` atomically; parent folders are created. The file gets the
+    mode of a plainly created file (as the umask says), not mkstemp's private 0600."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    mode = _file_mode()
     with deferred():  # a signal waits until the file is whole and the temp file gone
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TMP_SUFFIX)
         try:
+            os.fchmod(fd, mode)
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)
                 fh.flush()

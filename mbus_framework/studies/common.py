@@ -202,6 +202,7 @@ def compact_record(result: dict[str, Any]) -> dict[str, Any]:
     rec = {
         "parameters": dict(result["parameters"]),
         "properties": dict(result["properties"]),
+        "property_units": dict(result.get("property_units") or {}),
         "standard_errors": dict(unc.get("standard_errors", {})),
         "ci95": dict(unc.get("ci95", {})),
         "property_standard_errors": dict(unc.get("property_standard_errors", {})),

@@ -22,7 +22,7 @@ calls.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -82,6 +82,10 @@ class ModelRow:
     parameters: dict[str, float] = field(default_factory=dict)
     standard_errors: dict[str, float] = field(default_factory=dict)
     properties: dict[str, float] = field(default_factory=dict)
+    property_units: dict[str, str] = field(default_factory=dict)
+    property_standard_errors: dict[str, float] = field(default_factory=dict)
+    parameter_units: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
     ljung_box_q: float = np.nan
     ljung_box_p: float = np.nan
     ljung_box_lags: int = 0
@@ -92,6 +96,7 @@ class ModelRow:
     error: str | None = None
     fit: FitResult | None = field(default=None, repr=False)
     model: MediumModel | None = field(default=None, repr=False)
+    problem: FitProblem | None = field(default=None, repr=False)
 
     @property
     def white(self) -> bool:
@@ -103,7 +108,7 @@ class ModelRow:
                 for k, v in self.parameters.items() if k in self.standard_errors}
 
     def as_dict(self) -> dict[str, Any]:
-        out = {k: v for k, v in self.__dict__.items() if k not in ("fit", "model")}
+        out = {k: v for k, v in self.__dict__.items() if k not in ("fit", "model", "problem")}
         out["white"] = self.white
         out["relative_standard_errors"] = self.relative_standard_errors()
         return _jsonable(out)
@@ -196,7 +201,9 @@ def compare_models(
         problem = FitProblem(cand.model, data.t, data.u, data.y, initial=cand.initial, fixed=dict(cand.fixed),
                              hold=data.hold, output_filter=data.output_filter)
         p = int(problem.free.sum())
-        row = ModelRow(cand.name, p, n, model=cand.model)
+        row = ModelRow(cand.name, p, n, model=cand.model, problem=problem,
+                       parameter_units={q.name: q.unit for q in problem.parameters},
+                       property_units={q.name: q.unit for q in cand.model.properties})
         t0 = time.perf_counter()
         try:
             fit = solver.solve(problem, progress)
@@ -241,8 +248,26 @@ def _fill_row(row: ModelRow, problem: FitProblem, fit: FitResult, lags: int | No
     row.ljung_box_q, row.ljung_box_p, row.ljung_box_lags = ljung_box(residuals, lags)
 
 
+def review_row(row: ModelRow, c, measurement, waveform, compensation) -> None:
+    """Properties with their standard errors, and the warnings, of ``row``'s fit as a single run
+    of that model reports them (:func:`~mbus_framework.pipeline.results.build_result`)."""
+    from mbus_framework.pipeline.results import build_result
+
+    if measurement.truth and set(measurement.truth) != set(c.model.parameter_names):
+        measurement = replace(measurement, truth=None)  # the truth is another model's parameters
+    doc = build_result(c, measurement, row.problem, row.fit, waveform, compensation)
+    unc = doc.get("uncertainty") or {}
+    row.properties = dict(doc["properties"])
+    row.property_units = dict(doc["property_units"])
+    row.property_standard_errors = {k: float(v) for k, v in (unc.get("property_standard_errors") or {}).items()}
+    if unc.get("standard_errors"):  # the sandwich estimate when the output is compensated, as a single run
+        row.standard_errors = {k: float(v) for k, v in unc["standard_errors"].items()}
+    row.warnings = list(doc.get("warnings") or [])
+
+
 def render_table(table: ComparisonTable, parameters: bool = True) -> str:
-    """Plain-text table: one line per model (best marked '*'), then parameter estimates."""
+    """Plain-text table: one line per model (best marked '*'), then each model's parameter and
+    property estimates with standard errors and units, and its warnings."""
     crit = table.criterion.upper()
     head = (f"{'':1} {'model':<22} {'p':>3} {'cost':>12} {'AIC':>12} {'BIC':>12} {'d' + crit:>10} "
             f"{'LB Q':>9} {'LB p':>8} {'white':>5}  status")
@@ -266,10 +291,19 @@ def render_table(table: ComparisonTable, parameters: bool = True) -> str:
             lines.append(f"{r.name}{'  (best)' if r.best else ''}: residual std {r.residual_std:.4g}")
             rel = r.relative_standard_errors()
             for nm, v in r.parameters.items():
+                unit = r.parameter_units.get(nm, "")
                 if nm in r.standard_errors:
-                    lines.append(f"    {nm:<18} {v:>13.6g} +- {r.standard_errors[nm]:<11.4g} ({100 * rel[nm]:.3g} %)")
+                    lines.append(f"    {nm:<18} {v:>13.6g} +- {r.standard_errors[nm]:<11.4g} {unit:<8} "
+                                 f"({100 * rel[nm]:.3g} %)")
                 else:
-                    lines.append(f"    {nm:<18} {v:>13.6g} (fixed)")
+                    lines.append(f"    {nm:<18} {v:>13.6g} {'':<14} {unit:<8} (fixed)")
+            for nm, v in r.properties.items():
+                se = r.property_standard_errors.get(nm)
+                unit = r.property_units.get(nm, "")
+                rse = f" ({100 * se / abs(v):.3g} %)" if se is not None and np.isfinite(se) and v else ""
+                spread = f"+- {se:<11.4g}" if se is not None and np.isfinite(se) else f"{'':<14}"
+                lines.append(f"    {nm:<18} {v:>13.6g} {spread} {unit:<8}{rse}")
+            lines += [f"    warning: {w}" for w in r.warnings]
     return "\n".join(lines)
 
 
@@ -322,6 +356,8 @@ def run_comparison(
     import yaml
 
     from mbus_framework.engine.control_interop import write_bode_plot
+    from mbus_framework.estimation.spectral import excited_band
+    from mbus_framework.pipeline.units import record_units
     from mbus_framework.interfaces.registry import default_registry
     from mbus_framework.pipeline.config import load_config
     from mbus_framework.pipeline.run import acquire, build_components, designed_waveform, new_run_dir
@@ -354,13 +390,19 @@ def run_comparison(
     data = c.compensator.apply(measurement)
     cdata = ComparisonData(data.t, data.u, data.y, config.model.hold, c.compensator.output_filter())
     table = compare_models(cdata, candidates, c.solver, progress=progress)
+    for row in table.rows:
+        if row.fit is not None:
+            review_row(row, replace(c, model=row.model), measurement, waveform, data.meta.get("compensation"))
     text = render_table(table)
     atomic_write_text(run_dir / "comparison.txt", text + "\n")
     atomic_write_json(run_dir / "comparison.json", {"config": source, "run_dir": str(run_dir), **table.as_dict()})
     if (plots if plots is not None else config.output.plots) and table.best is not None:
         best = table.row(table.best)
         others = [(r.name, r.model, r.fit.theta) for r in table.rows if r is not best and r.fit is not None]
+        units = record_units(measurement.meta, data.meta.get("compensation"))
         write_bode_plot(run_dir / "comparison_bode.png", best.model, best.fit.theta, data.u, data.y, data.dt,
-                        label=f"{best.name} (best)", extra_models=others, title="model comparison")
+                        label=f"{best.name} (best)", extra_models=others,
+                        title="model comparison over the record's excited band",
+                        units=(units["u"], units["y"]), band=excited_band(data.u, data.dt))
     write_folder_report(run_dir, "mbus model comparison", text, source)
     return table, text

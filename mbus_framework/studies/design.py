@@ -238,7 +238,7 @@ def run_design(config_path, overrides=None, out_dir=None) -> str:
     elif pair is not None:
         band, band_source = pair.band(), "the rig's transducer pair (-6 dB)"
     else:
-        band, band_source = (0.3e6, 0.7e6), "default (0.5 MHz A301S pair)"
+        band, band_source = (0.3e6, 0.7e6), "default design band (no transducers in the config)"
     if band[1] >= fs / 2:
         raise ConfigError(f"{source}: design.band: {band[1]:g} Hz is above the Nyquist frequency {fs / 2:g} Hz")
 
@@ -268,7 +268,7 @@ def run_design(config_path, overrides=None, out_dir=None) -> str:
     out.mkdir(parents=True, exist_ok=True)
     files = []
     if config.output.plots:
-        files.append(plot_spectra(out, ranked, band, rig_response, fs))
+        files.append(plot_spectra(out, ranked, band, rig_response, fs, band_label(band_source)))
     result = {
         "config": source,
         "band_hz": list(band),
@@ -366,7 +366,17 @@ def design_text(result: dict, ranked: list[Ranked], names: list[str], out: Path,
     return "\n".join(lines)
 
 
-def plot_spectra(out: Path, ranked: list[Ranked], band, rig_response, fs: float) -> str:
+def band_label(band_source: str) -> str:
+    """Legend of the shaded band: a transducer band only when the band comes from transducers."""
+    if "transducer" in band_source and "no transducers" not in band_source:
+        return "transducer band"
+    if band_source == "design.band":
+        return "design.band"
+    return "design band (default; no transducers)"
+
+
+def plot_spectra(out: Path, ranked: list[Ranked], band, rig_response, fs: float,
+                 band_text: str = "transducer band") -> str:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -380,7 +390,7 @@ def plot_spectra(out: Path, ranked: list[Ranked], band, rig_response, fs: float)
         smooth = np.convolve(p, np.ones(9) / 9, mode="same")
         ax.plot(f[sel] / 1e6, 10 * np.log10(np.maximum(smooth[sel], 1e-30)), lw=1.0 if i else 1.8,
                 label=f"{i + 1}. {r.label} (D-eff {r.efficiency:.2f})")
-    ax.axvspan(band[0] / 1e6, band[1] / 1e6, color="0.9", zorder=0, label="transducer band")
+    ax.axvspan(band[0] / 1e6, band[1] / 1e6, color="0.9", zorder=0, label=band_text)
     top = max(10 * np.log10(np.max(r.spectrum[1])) for r in ranked)
     if rig_response is not None:
         f = np.linspace(0, fmax, 800)[1:]
@@ -388,7 +398,7 @@ def plot_spectra(out: Path, ranked: list[Ranked], band, rig_response, fs: float)
                 label="|G_TR| (dB, shifted)")
     ax.set_ylim(top - 50, top + 12)
     ax.set_xlabel("frequency [MHz]")
-    ax.set_ylabel("power density [dB]")
+    ax.set_ylabel("power density [dB re 1 u^2/Hz]")
     ax.set_title("candidate excitations (same record and peak amplitude), ranked by D-optimality")
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()

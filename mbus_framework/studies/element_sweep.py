@@ -155,7 +155,8 @@ def _element_sweep(ctx: _Context):
         "failed": [{"n_elements": r["n_elements"], "run": r["label"], "error": r["error"]} for r in runs if not r["ok"]],
     }
     text = _sweep_text(ctx, rows, summary, pnames)
-    return rows, summary, runs, text, _sweep_figure(ok, pnames, truth, settle)
+    units = ok[-1].get("property_units") or {p.name: p.unit for p in c.model.properties}
+    return rows, summary, runs, text, _sweep_figure(ok, pnames, truth, settle, units)
 
 
 
@@ -185,15 +186,22 @@ def _sweep_text(ctx, rows, summary, pnames) -> str:
     return "\n".join(lines)
 
 
-def _sweep_figure(ok, pnames, truth, settle):
+def _sweep_figure(ok, pnames, truth, settle, units=None):
+    """One panel per property against n, in a scaled unit of the property (e.g. GPa)."""
+    from mbus_framework.pipeline.units import label_axis
+
+    units = units or {}
     plt = _pyplot()
     cols = 2
     nrow = math.ceil(len(pnames) / cols)
     fig, axes = plt.subplots(nrow, cols, figsize=(10, 3.4 * nrow), squeeze=False)
     n = np.array([r["n_elements"] for r in ok])
     for ax, p in zip(axes.flat, pnames):
-        v = np.array([r["properties"][p] for r in ok])
+        v = np.array([r["properties"][p] for r in ok], float)
         se = np.array([r["property_standard_errors"].get(p, np.nan) for r in ok], float)
+        k = label_axis(ax, "y", p, np.concatenate([v, [truth[p]] if p in truth else []]), units.get(p, ""))
+        v, se = v / k, se / k
+        truth = {**truth, p: truth[p] / k} if p in truth else truth
         # A coarse chain can drive a coefficient to ~0 (a degenerate fit): keep the axis to
         # three decades around the median and mark such points at the edge.
         ref = [x for x in [truth.get(p)] if x] + list(v[np.isfinite(v)])
@@ -210,7 +218,7 @@ def _sweep_figure(ok, pnames, truth, settle):
         if settle.get(p) is not None:
             ax.axvline(settle[p], color="tab:red", ls="--", lw=1, label=f"settles at n = {settle[p]}")
         ax.set_title(p)
-        ax.set_xlabel("number of elements n")
+        ax.set_xlabel("number of elements n [-]")
         shown = np.concatenate([v[inside], [truth[p]] if p in truth else []])
         if shown.size and np.all(shown > 0) and shown.max() / shown.min() > 20 or np.any(~inside):
             ax.set_yscale("log")

@@ -51,6 +51,7 @@ from mbus_framework.errors import DataError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.pipeline import run_folder
 from mbus_framework.pipeline.storage import read_npz, read_regular_file
+from mbus_framework.pipeline.units import record_units
 
 from mbus_plugins.backends.mat_file import MatVariables, read_mat
 from mbus_plugins.backends.pretrigger import remove_pretrigger
@@ -194,7 +195,7 @@ def read_run_folder(path: Path) -> Measurement:
     meta = meta if isinstance(meta, dict) else {}
     warnings_saved = meta.get("warnings") if isinstance(meta.get("warnings"), list) else []
     m.meta.update(source=str(path / RUN_RECORD), refit_of=str(path), original_source=str(meta.get("source")),
-                  warnings=[str(w) for w in warnings_saved])
+                  record_units=record_units(meta), warnings=[str(w) for w in warnings_saved])
     return m
 
 

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser, name: str = "calibrate") -> N
                             help="calibration file written by mbus-analyze calibrate")
         parser.add_argument("--replicates", type=int, default=1, metavar="M",
                             help="MBUS measurements averaged into each new value (default 1)")
-        parser.add_argument("--out", metavar="FILE", help="output table (default: <table>_calibrated.csv)")
+        parser.add_argument("-o", "--out", metavar="FILE", help="output table (default: <table>_calibrated.csv)")
         return
     parser.add_argument("tables", nargs="+", metavar="TABLE",
                         help="campaign table(s); NAME=PATH names a table's variant (e.g. uncompensated=raw.csv)")
@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser, name: str = "calibrate") -> N
                         help="column whose values split a table into MBUS variants (default: compensation)")
     parser.add_argument("--properties", nargs="+", metavar="NAME", help=f"default: {' '.join(PROPERTIES)}")
     parser.add_argument("--level", type=float, default=0.95, help="confidence level of intervals and bands")
-    parser.add_argument("--out", metavar="DIR", help="output folder (default: <table folder>/calibration)")
+    parser.add_argument("-o", "--out", metavar="DIR", help="output folder (default: <table folder>/calibration)")
     parser.add_argument("--no-plots", dest="plots", action="store_false", help="skip the figures")
 
 

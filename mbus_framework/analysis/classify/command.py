@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="do not scale each feature to unit variance (k-means depends on it; LDA does not)")
     parser.add_argument("--restarts", type=int, default=20, help="k-means seeded restarts (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="k-means random seed (default 0)")
-    parser.add_argument("--out", metavar="DIR", help="output folder (default: <table folder>/classify_<COLUMN>)")
+    parser.add_argument("-o", "--out", metavar="DIR", help="output folder (default: <table folder>/classify_<COLUMN>)")
     parser.add_argument("--no-plots", dest="plots", action="store_false", help="skip the figure")
 
 
