@@ -351,13 +351,17 @@ def main(argv=None) -> int:
     return 0
 
 
+def _pct(v) -> str:
+    return "n/a" if v is None else f"{v:.1f}"
+
+
 def print_summary(s: dict) -> None:
     d, f = s["default_start_identifiable"], s["far_start_identifiable"]
     print(f"default start: {d['ok']}/{d['cases']} practically identifiable cases within max(4 CRB SE, 0.5 %) "
-          f"({d['percent']:.1f} %); all cases {s['default_start_all']['ok']}/{s['default_start_all']['cases']}")
-    print(f"far starts:    {f['ok']}/{f['cases']} ({f['percent']:.1f} %); all cases "
+          f"({_pct(d['percent'])} %); all cases {s['default_start_all']['ok']}/{s['default_start_all']['cases']}")
+    print(f"far starts:    {f['ok']}/{f['cases']} ({_pct(f['percent'])} %); all cases "
           f"{s['far_start_all']['ok']}/{s['far_start_all']['cases']}")
-    print(f"silent failures: {s['silent_failures']}; coverage of 95 % intervals: {s['coverage_percent']:.1f} % "
+    print(f"silent failures: {s['silent_failures']}; coverage of 95 % intervals: {_pct(s['coverage_percent'])} % "
           f"of {s['coverage_estimates']} estimates; noise-dominated records warned: "
           f"{s['stress_all_parameters_warned']}/{s['stress_cases']}")
     t = s["time_per_case_s"]
