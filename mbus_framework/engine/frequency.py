@@ -262,7 +262,12 @@ def _solve_points(ss, f: np.ndarray, dt: float | None):
 
 def _resolvent(s: np.ndarray, A: np.ndarray) -> np.ndarray:
     """(F, n, n) stack of s_k I - A."""
-    return s[:, None, None] * np.eye(A.shape[0])[None] - A[None]
+    n = A.shape[0]
+    M = np.empty((s.size, n, n), dtype=complex)
+    M[...] = -A
+    d = np.arange(n)
+    M[:, d, d] += s[:, None]
+    return M
 
 
 def _direct_response(ss, f: np.ndarray, dt: float | None) -> np.ndarray:
@@ -314,7 +319,7 @@ def _direct_jacobian(model, theta, f, dt) -> tuple[np.ndarray, np.ndarray]:
             daug[:n, :n], daug[:n, n:] = dA * h, dB * h
             dE = expm_frechet(aug, daug, compute_expm=False)
             dA, dB = dE[:n, :n], dE[:n, n:]
-        J[:, p] = x @ dC[0] + np.einsum("fi,ij,fj->f", w, dA, x) + w @ dB[:, 0] + dD[0, 0]
+        J[:, p] = x @ dC[0] + ((w @ dA) * x).sum(axis=1) + w @ dB[:, 0] + dD[0, 0]
     return H, J
 
 
