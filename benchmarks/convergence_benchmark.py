@@ -154,6 +154,17 @@ def make_cases(seed: int, quick: bool) -> list[dict]:
     return cases
 
 
+def select(cases: list[dict], spec: str | None) -> list[dict]:
+    """The cases whose index ``spec`` names ('start:stop:step' or '3,17,40'; None: all)."""
+    if not spec:
+        return cases
+    if ":" in spec:
+        parts = [int(x) if x else None for x in spec.split(":")]
+        return cases[slice(*parts)]
+    keep = {int(x) for x in spec.split(",") if x.strip()}
+    return [c for c in cases if c["index"] in keep]
+
+
 def run_case(case: dict) -> dict:
     from scipy import signal
     from scipy.signal import max_len_seq
@@ -200,7 +211,7 @@ def run_case(case: dict) -> dict:
     out = {k: v for k, v in case.items() if k not in ("properties",)}
     out.update(parameters_true=dict(zip(names, theta.tolist())), crb_relative=dict(zip(names, crb.tolist())),
                noise_std=sigma, identifiable=bool(np.all(crb < 0.2)))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         res = fit(t, u, y, sample=sample, model_options={"n_elements": case["n"]}, initial=initial, plots=False)
     except Exception as exc:  # a crash is a failed, silent case
@@ -227,9 +238,16 @@ def run_case(case: dict) -> dict:
         starts=len(doc["strategy"].get("starts", [])),
         cost=doc["solver"]["cost"],
         wall_time_s=float(doc["solver"]["wall_time_s"]),
+        cpu_time_s=time.process_time() - c0,  # the whole fit's CPU time (a shared machine's wall clock waits)
+        nfev=doc["solver"].get("nfev"),
         error=None,
     )
     return out
+
+
+def _spread(values) -> dict:
+    v = np.asarray(values, dtype=float)
+    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "max": float(v.max())}
 
 
 def summarise(cases: list[dict], wall: float, workers: int) -> dict:
@@ -266,6 +284,7 @@ def summarise(cases: list[dict], wall: float, workers: int) -> dict:
         "stress_all_parameters_warned": sum(c.get("all_parameters_warned", False) for c in stress),
         "time_per_case_s": {"median": float(np.median(times)), "p90": float(np.percentile(times, 90)),
                             "max": float(times.max()), "mean": float(times.mean())},
+        "cpu_per_case_s": _spread([c.get("cpu_time_s", np.nan) for c in fits]),
         "errors": sum(c.get("error") is not None for c in cases),
         "wall_time_s": wall,
         "workers": workers,
@@ -298,8 +317,10 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="a small subset (about 80 cases)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--cases", default=None, help="only these case indices: a Python slice 'start:stop:step' or "
+                                                 "a comma list '3,17,40' (to compare a change on a subset)")
     args = p.parse_args(argv)
-    cases = make_cases(args.seed, args.quick)
+    cases = select(make_cases(args.seed, args.quick), args.cases)
     workers = max(1, min(os.cpu_count() or 1, args.workers))
     t0 = time.perf_counter()
     done = []
@@ -330,18 +351,24 @@ def main(argv=None) -> int:
     return 0
 
 
+def _pct(v) -> str:
+    return "n/a" if v is None else f"{v:.1f}"
+
+
 def print_summary(s: dict) -> None:
     d, f = s["default_start_identifiable"], s["far_start_identifiable"]
     print(f"default start: {d['ok']}/{d['cases']} practically identifiable cases within max(4 CRB SE, 0.5 %) "
-          f"({d['percent']:.1f} %); all cases {s['default_start_all']['ok']}/{s['default_start_all']['cases']}")
-    print(f"far starts:    {f['ok']}/{f['cases']} ({f['percent']:.1f} %); all cases "
+          f"({_pct(d['percent'])} %); all cases {s['default_start_all']['ok']}/{s['default_start_all']['cases']}")
+    print(f"far starts:    {f['ok']}/{f['cases']} ({_pct(f['percent'])} %); all cases "
           f"{s['far_start_all']['ok']}/{s['far_start_all']['cases']}")
-    print(f"silent failures: {s['silent_failures']}; coverage of 95 % intervals: {s['coverage_percent']:.1f} % "
+    print(f"silent failures: {s['silent_failures']}; coverage of 95 % intervals: {_pct(s['coverage_percent'])} % "
           f"of {s['coverage_estimates']} estimates; noise-dominated records warned: "
           f"{s['stress_all_parameters_warned']}/{s['stress_cases']}")
     t = s["time_per_case_s"]
     print(f"time per case: median {t['median']:.2f} s, p90 {t['p90']:.2f} s, max {t['max']:.2f} s "
           f"({s['workers']} workers, {s['wall_time_s']:.0f} s in all)")
+    c = s["cpu_per_case_s"]
+    print(f"CPU per case (whole fit): median {c['median']:.2f} s, p90 {c['p90']:.2f} s, max {c['max']:.2f} s")
     for g, v in s["by_group"].items():
         print(f"  {g:<10} {v['ok_identifiable']}/{v['identifiable']} identifiable ok, {v['ok_all']}/{v['cases']} all, "
               f"median {v['median_time_s']:.2f} s")

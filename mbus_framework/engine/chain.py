@@ -379,6 +379,76 @@ def _is_zero(v) -> bool:
     return isinstance(v, (int, float)) and v == 0.0
 
 
+def _slots(lm: LinkMatrices) -> list:
+    """The coefficients of a link in a fixed order (absent terms left out)."""
+    out = [v for v in (lm.k, lm.b) if v is not None] + list(lm.c) + [v for row in lm.a for v in row]
+    for vec in (lm.e, lm.f):
+        out += [v for v in (vec or ()) if v is not None]
+    return out
+
+
+def _structure(lm: LinkMatrices) -> tuple:
+    """Which terms of a link are present (what :func:`assemble_chain` branches on)."""
+    present = lambda vec: None if vec is None else tuple(v is not None for v in vec)  # noqa: E731
+    return (lm.k is not None, lm.b is not None, lm.n_internal, tuple(len(r) for r in lm.a), present(lm.e), present(lm.f))
+
+
+def _with_slots(lm: LinkMatrices, values) -> LinkMatrices:
+    """A link of the same structure with its coefficients replaced by ``values`` (in
+    :func:`_slots` order)."""
+    it = iter(values)
+    take = lambda v: None if v is None else next(it)  # noqa: E731
+    k, b = take(lm.k), take(lm.b)
+    c = [next(it) for _ in lm.c]
+    a = [[next(it) for _ in row] for row in lm.a]
+    e = None if lm.e is None else [take(v) for v in lm.e]
+    f = None if lm.f is None else [take(v) for v in lm.f]
+    return LinkMatrices(k, b, c, a, e, f)
+
+
+@dataclass
+class CompiledAssembly:
+    """:func:`assemble_chain` for numeric coefficients as the linear map it is: every entry
+    of A, B, C, D is a constant plus a sum of link coefficients v_s times constants,
+
+        M(v) = M_0 + sum_s v_s M_s,
+
+    with M_0 the assembly at v = 0 and M_s = M(e_s) - M_0 (assembled once per structure).
+    Float or complex coefficients (complex-step derivatives) give the same matrices as the
+    element-by-element assembly, to round-off."""
+
+    base: np.ndarray  # (size,): A, B, C, D flattened and concatenated at v = 0
+    slopes: np.ndarray  # (m, size): M_s flattened likewise
+    shapes: tuple[tuple[int, ...], ...]
+
+    @classmethod
+    def build(cls, model: "ChainModel", laws: list[tuple[str, LinkMatrices]]) -> "CompiledAssembly":
+        counts = [len(_slots(lm)) for _, lm in laws]
+        m = sum(counts)
+
+        def assembled(v: np.ndarray) -> list[np.ndarray]:
+            parts, start = [], 0
+            for (suffix, lm), c in zip(laws, counts):
+                parts.append((suffix, _with_slots(lm, [float(x) for x in v[start : start + c]])))
+                start += c
+            return [np.asarray(x, dtype=float) for x in model._assemble(parts, np.zeros(1))]
+
+        base = assembled(np.zeros(m))
+        flat = lambda ms: np.concatenate([x.ravel() for x in ms])  # noqa: E731
+        slopes = np.array([flat(assembled(np.eye(m)[s])) - flat(base) for s in range(m)]).reshape(m, -1)
+        return cls(flat(base), slopes, tuple(x.shape for x in base))
+
+    def evaluate(self, v: np.ndarray) -> StateSpace:
+        """The matrices at coefficients ``v`` (in :func:`_slots` order, links concatenated)."""
+        flat = self.base + v @ self.slopes
+        out, start = [], 0
+        for shape in self.shapes:
+            size = shape[0] * shape[1]
+            out.append(flat[start : start + size].reshape(shape))
+            start += size
+        return StateSpace(*out)
+
+
 def end_half_masses(element_mass: float, n: int) -> np.ndarray:
     """Eq. 3.13: m_1 = m_n = m/2, interior m (n = 1: the single mass is m/2)."""
     m = np.full(n, element_mass)
@@ -514,15 +584,34 @@ class ChainModel(MediumModel):
         return tuple(out)
 
     def state_space(self, theta) -> StateSpace:
+        laws = self._link_matrices(theta)
+        if isinstance(theta, np.ndarray) and theta.dtype.kind in "fc":
+            v = np.array([x for _, lm in laws for x in _slots(lm)], dtype=theta.dtype)
+            if np.all(np.isfinite(v)):  # non-finite values would spread through 0 * inf
+                return self._compiled(laws).evaluate(v)
+        return self._assemble(laws, theta)
+
+    def _link_matrices(self, theta) -> list[tuple[str, LinkMatrices]]:
+        return [(d.suffix, d.law.matrices([theta[i] for i in range(sl.start, sl.stop)])) for d, sl in self._slices()]
+
+    def _assemble(self, laws: list[tuple[str, LinkMatrices]], like) -> StateSpace:
         n = self.n
         normal_links, shear_links = [], [None] * n
-        for d, sl in self._slices():
-            lm = d.law.matrices([theta[i] for i in range(sl.start, sl.stop)])
-            if d.suffix == "sigma":
+        for suffix, lm in laws:
+            if suffix == "sigma":
                 normal_links = [lm] * n
             else:
                 shear_links = [lm] * n
-        return assemble_chain(self.masses(), normal_links, shear_links, theta)
+        return assemble_chain(self.masses(), normal_links, shear_links, like)
+
+    def _compiled(self, laws: list[tuple[str, LinkMatrices]]) -> "CompiledAssembly":
+        """The chain's assembly as a linear map of its link coefficients, built once per
+        structure of the link matrices (cached on the model)."""
+        key = tuple((suffix, _structure(lm)) for suffix, lm in laws)
+        cache = self.__dict__.setdefault("_compiled_assembly", {})
+        if key not in cache:
+            cache[key] = CompiledAssembly.build(self, laws)
+        return cache[key]
 
     def to_properties(self, theta) -> dict[str, float]:
         theta = [float(v) for v in theta]

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
+from mbus_framework.engine.frequency import response, response_batch, response_with_jacobian, tail_basis
 from mbus_framework.estimation.spectral import RecordSpectrum
 
 #: Default plausible range of every property, by unit (see the module docstring).
@@ -166,9 +166,9 @@ def scan(problem, spectrum: RecordSpectrum, space: SearchSpace, template: np.nda
         psis = np.vstack([np.clip(c + (2 * unit - 1) * halfwidth, plo, phi) for c in centres])
     else:
         psis = plo + unit * (phi - plo)
-    step = spectrum.step
+    step, F = spectrum.step, spectrum.f.size
     nz = e != 0
-    out: list[Candidate] = []
+    shapes_ok = []  # (theta0, j_lo, j_hi) of every shape with a scale range inside the box
     for psi in psis:
         base = Q @ psi
         if np.any((base[~nz] < llo[~nz]) | (base[~nz] > lhi[~nz])):
@@ -180,20 +180,34 @@ def scan(problem, spectrum: RecordSpectrum, space: SearchSpace, template: np.nda
             continue
         theta0 = template.copy()
         theta0[mv] = np.exp(base)
-        out += _scale_scan(problem, spectrum, space, theta0, mv, e, j_lo, j_hi, per_shape, amplitude_penalty)
+        shapes_ok.append((theta0, j_lo, j_hi))
+    if not shapes_ok:
+        return []
+    # one batched evaluation of every shape on its own extended grid (padded to one length)
+    lengths = [F + j_hi - j_lo for _, j_lo, j_hi in shapes_ok]
+    width = max(lengths)
+    grids = np.array([spectrum.f[0] * np.exp(step * np.minimum(np.arange(width), L - 1) - step * j_hi)
+                      for (_, _, j_hi), L in zip(shapes_ok, lengths)])
+    thetas = np.array([th[: problem.n_model] for th, _, _ in shapes_ok])
+    Gs = response_batch(problem.model, thetas, grids)
+    out: list[Candidate] = []
+    for (theta0, j_lo, j_hi), G, L in zip(shapes_ok, Gs, lengths):
+        out += _scale_scan(problem, spectrum, space, theta0, mv, e, j_lo, j_hi, per_shape, amplitude_penalty, G[:L])
     out.sort(key=lambda c: c.cost)
     return out
 
 
-def _scale_scan(problem, spectrum, space, theta0, mv, e, j_lo, j_hi, per_shape, amplitude_penalty=None) -> list[Candidate]:
-    """Costs of theta0 * c**e for ln c = j step, j_lo..j_hi, from one response evaluation.
+def _scale_scan(problem, spectrum, space, theta0, mv, e, j_lo, j_hi, per_shape, amplitude_penalty=None,
+                G: np.ndarray | None = None) -> list[Candidate]:
+    """Costs of theta0 * c**e for ln c = j step, j_lo..j_hi, from one response evaluation
+    (``G``, when given, is that response on the extended grid below).
 
     G_c(f_i) = G(f_{i-j}); rows r of a sliding window over G on the extended grid
     f_lo e^{k step}, k = -j_hi..F-1-j_lo, are the scales j = j_hi - r."""
     step, F = spectrum.step, spectrum.f.size
-    k = np.arange(-j_hi, F - j_lo)
-    f_ext = spectrum.f[0] * np.exp(step * k)
-    G = response(problem.model, theta0[: problem.n_model], f_ext)
+    if G is None:
+        k = np.arange(-j_hi, F - j_lo)
+        G = response(problem.model, theta0[: problem.n_model], spectrum.f[0] * np.exp(step * k))
     if not np.all(np.isfinite(G)):
         return []
     W = np.lib.stride_tricks.sliding_window_view(G, F)  # (C, F): row r -> j = j_hi - r

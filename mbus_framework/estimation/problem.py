@@ -65,6 +65,9 @@ class FitProblem:
         self.t, self.u, self.y = (np.asarray(a, dtype=float) for a in (self.t, self.u, self.y))
         if self.nuisance.active and self.hold != "zoh":
             raise ValueError("an input gain or delay needs hold='zoh'")
+        # the model's parameter list, read once (a model builds it on every access; the search
+        # asks for it thousands of times)
+        self._model_parameters = (self.model, tuple(self.model.parameters))
         params = self.parameters
         lo = np.array([p.lower for p in params], dtype=float)
         hi = np.array([p.upper for p in params], dtype=float)
@@ -85,7 +88,7 @@ class FitProblem:
     @property
     def parameters(self) -> list[Parameter]:
         """The model's parameters, then the nuisance parameters when active."""
-        params = list(self.model.parameters)
+        params = list(self._own_parameters())
         if self.nuisance.active:
             params += self.nuisance.parameters(self.dt, float(self.t[-1] - self.t[0]))
         return params
@@ -93,7 +96,14 @@ class FitProblem:
     @property
     def n_model(self) -> int:
         """Number of leading entries of theta that belong to the medium model."""
-        return len(self.model.parameters)
+        return len(self._own_parameters())
+
+    def _own_parameters(self) -> tuple[Parameter, ...]:
+        model, params = getattr(self, "_model_parameters", (None, ()))
+        if model is not self.model:  # the model was replaced after construction
+            params = tuple(self.model.parameters)
+            self._model_parameters = (self.model, params)
+        return params
 
     @property
     def names(self) -> list[str]:

@@ -487,18 +487,23 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
     out_of_time = s.clock.out_of_time
     spectral_ok = s.space.movable.any()
     # 1. the physics-based starts, fitted in the frequency domain first
-    queue = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
+    given = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
     raw = [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
-    if not getattr(s.problem.model, "has_state_space", True):
-        # no states: the spectral stage cannot model the record's unfinished tail, so a
-        # frequency-response model's own physics-based start is fitted in the time domain first
-        queue += raw + (s.seed_candidates(seeds) if spectral_ok else [])
-    elif spectral_ok:
-        queue += s.seed_candidates(seeds)
-    else:
-        queue += raw
+
+    def queue():  # lazily: the spectral fits of the seeds only when the start as given is not accepted
+        yield from given
+        if not getattr(s.problem.model, "has_state_space", True):
+            # no states: the spectral stage cannot model the record's unfinished tail, so a
+            # frequency-response model's own physics-based start is fitted in the time domain first
+            yield from raw
+            yield from (s.seed_candidates(seeds) if spectral_ok else [])
+        elif spectral_ok:
+            yield from s.seed_candidates(seeds)
+        else:
+            yield from raw
+
     tried = 0
-    for c in queue:
+    for c in queue():
         if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
