@@ -13,7 +13,7 @@ from mbus_framework.engine import physics
 from mbus_framework.engine.moving import moving_average
 from mbus_framework.engine.simulation import simulate
 from mbus_framework.errors import ConfigError
-from mbus_framework.estimation import poles, strategy
+from mbus_framework.estimation import poles, strategy, strategy_options
 from mbus_framework.estimation.problem import FitProblem, Progress
 from mbus_framework.estimation.spectral import excited_band
 from mbus_framework.estimation.strategy import StrategyOptions, search
@@ -72,7 +72,7 @@ class Notes(Progress):
 def test_budget_stops_a_search_between_evaluations(monkeypatch):
     problem = mismatched()
     clock = FakeClock()
-    monkeypatch.setattr(strategy, "_now", clock)
+    monkeypatch.setattr(strategy_options, "_now", clock)
     evaluations_after = []
     budget = 300.0
 
