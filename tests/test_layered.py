@@ -41,13 +41,14 @@ def test_one_layer_equals_plain_chain_exactly(law, n, data):
     logs = data.draw(st.lists(st.floats(-2, 2), min_size=len(plain.parameters), max_size=len(plain.parameters)))
     theta = np.array([p.typical for p in plain.parameters]) * np.exp(logs)
     for a, b in zip(layered.state_space(theta), plain.state_space(theta)):
-        np.testing.assert_array_equal(a, b)
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=0)  # to round-off: the plain chain's assembly is compiled
     np.testing.assert_array_equal(layered.masses(), plain.masses())
     assert layered.parameter_names == [f"{p}_layer1" for p in plain.parameter_names]
     assert [p.typical for p in layered.parameters] == [p.typical for p in plain.parameters]
     assert list(layered.to_properties(theta).values()) == list(plain.to_properties(theta).values())
     u = np.sign(np.sin(np.arange(400) / 7.0))
-    np.testing.assert_array_equal(simulate(layered, theta, u, 1.6e-7), simulate(plain, theta, u, 1.6e-7))
+    y_layered, y_plain = simulate(layered, theta, u, 1.6e-7), simulate(plain, theta, u, 1.6e-7)
+    np.testing.assert_allclose(y_layered, y_plain, rtol=1e-9, atol=1e-12 * np.max(np.abs(y_plain)))
 
 
 def test_same_material_in_two_layers_is_the_uniform_chain():

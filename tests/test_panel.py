@@ -104,7 +104,7 @@ def test_join_uses_mean_scores_and_notes_what_it_leaves_out():
     assert list(joined.index) == ["s0", "s3", "s4", "s5", "s6"]
     assert joined.loc["s3", "score"] == pytest.approx(6.5) and joined.loc["s3", "n_scores"] == 2
     text = " ".join(notes)
-    assert "failed fit" in text and "missing inputs" in text and "no scores" in text
+    assert "failed fit" in text and "missing or non-numeric inputs" in text and "no scores" in text
 
 
 def test_join_averages_replicate_rows():

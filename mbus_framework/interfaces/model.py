@@ -188,7 +188,7 @@ class FrequencyResponseModel(MediumModel):
     def state_space(self, theta) -> StateSpace:
         from mbus_framework.errors import PluginError
 
-        raise PluginError(f"{type(self).__name__} is defined by its frequency response only: it has no state space "
+        raise PluginError("this model is defined by its frequency response only: it has no state space "
                           "(use the scipy_lm or frequency_domain solver)")
 
     @property

@@ -11,7 +11,7 @@ Node i sits at the transmitter-side end of element i:
     the last one joins node N and the receiver; shear link i ties node i to the surroundings;
     masses (eq. 3.13 generalised): m_1 = mu_1/2, m_N = mu_N/2, m_i = (mu_{i-1} + mu_i)/2.
 
-With one layer this is exactly the plain chain of the same law (tested bit for bit).
+With one layer this is the plain chain of the same law (tested to round-off).
 
 Parameters are the layer laws' coefficients named ``<symbol>_<direction>_<layer>``
 (e.g. ``k_sigma_skin`` [N/m], ``b_tau_flesh`` [N s/m]) with the laws' units, time exponents

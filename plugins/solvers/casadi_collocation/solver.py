@@ -246,8 +246,8 @@ class CasadiCollocation(Solver):
 def _check_supported(problem: FitProblem) -> None:
     if not getattr(problem.model, "has_state_space", True):
         raise EstimationError(
-            f"casadi_collocation: model {type(problem.model).__name__} is defined by its frequency response "
-            "only (no states to collocate); use solver scipy_lm or frequency_domain"
+            "casadi_collocation: the model is defined by its frequency response only (no states to "
+            "collocate); use solver scipy_lm or frequency_domain"
         )
     if problem.output_filter is not None:
         raise EstimationError(
