@@ -63,7 +63,9 @@ FUZZ = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCh
 @settings(max_examples=150, **FUZZ)
 @given(data=st.data())
 def test_mutated_configs(materials, cases_root, data):
-    case = fc.config_case(fc.HypothesisChooser(data), cases_root / f"c{next(_counter)}", materials)
+    # fixed-width folder names: the config text embeds the path, and hypothesis needs its length
+    # (drawn bounds) to be the same when it replays an example
+    case = fc.config_case(fc.HypothesisChooser(data), cases_root / f"c{next(_counter):07d}", materials)
     with debug_mode():
         fc.run_case(case, CASE_TIMEOUT)
 
@@ -71,7 +73,7 @@ def test_mutated_configs(materials, cases_root, data):
 @settings(max_examples=150, **FUZZ)
 @given(data=st.data(), fmt=st.sampled_from(fc.DATA_FORMATS))
 def test_mutated_data_files(materials, cases_root, data, fmt):
-    case = fc.data_case(fc.HypothesisChooser(data), cases_root / f"d{next(_counter)}", materials, fmt)
+    case = fc.data_case(fc.HypothesisChooser(data), cases_root / f"d{next(_counter):07d}", materials, fmt)
     with debug_mode():
         fc.run_case(case, CASE_TIMEOUT)
 
