@@ -48,7 +48,7 @@ def test_one_layer_equals_plain_chain_exactly(law, n, data):
     assert list(layered.to_properties(theta).values()) == list(plain.to_properties(theta).values())
     u = np.sign(np.sin(np.arange(400) / 7.0))
     y_layered, y_plain = simulate(layered, theta, u, 1.6e-7), simulate(plain, theta, u, 1.6e-7)
-    np.testing.assert_allclose(y_layered, y_plain, rtol=1e-9, atol=1e-12 * np.max(np.abs(y_plain)))
+    np.testing.assert_allclose(y_layered, y_plain, rtol=1e-9, atol=1e-9 * np.max(np.abs(y_plain)))  # round-off of the output scale
 
 
 def test_same_material_in_two_layers_is_the_uniform_chain():
