@@ -12,6 +12,7 @@ properties are those a contact-method run of the same model reports.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -98,16 +99,7 @@ class ModelChainLaw:
     n_elements: int = DEFAULT_ELEMENTS
 
     def _model(self, rho: float = 1000.0, h: float = 1e-3):
-        from mbus_framework.interfaces.registry import default_registry
-        from mbus_framework.interfaces.sample import Sample
-        from mbus_framework.engine.chain import ChainModel
-
-        spec = default_registry().get("model", self.model_name)
-        cls = spec.implementation
-        if not issubclass(cls, ChainModel) or "n_elements" not in cls.Options.model_fields:
-            raise ValueError(f"model {self.model_name!r} is not a chain of masses and links; the substitution "
-                             f"experiment fits chains (model:<chain>) and the laws")
-        return cls(Sample(h, _UNIT_AREA_DIAMETER, rho), cls.Options(n_elements=self.n_elements))
+        return _registered_chain(self.model_name, self.n_elements, float(rho), float(h))
 
     def _normal(self, model):
         names = [p.name for p in model.properties]
@@ -166,6 +158,21 @@ class ModelChainLaw:
     def transmission(self, w: np.ndarray, p: np.ndarray, rho: float, h: float, water) -> np.ndarray:
         model = self._model(rho, h)
         return _chain_transmission(model, self._theta(model, p), w, h, water)
+
+
+@lru_cache(maxsize=32)
+def _registered_chain(model_name: str, n_elements: int, rho: float, h: float):
+    """The registered chain plugin ``model_name`` on a unit-area column (built once per geometry:
+    a fit evaluates it hundreds of times)."""
+    from mbus_framework.engine.chain import ChainModel
+    from mbus_framework.interfaces.registry import default_registry
+    from mbus_framework.interfaces.sample import Sample
+
+    cls = default_registry().get("model", model_name).implementation
+    if not issubclass(cls, ChainModel) or "n_elements" not in cls.Options.model_fields:
+        raise ValueError(f"model {model_name!r} is not a chain of masses and links; the substitution "
+                         f"experiment fits chains (model:<chain>) and the laws")
+    return cls(Sample(h, _UNIT_AREA_DIAMETER, rho), cls.Options(n_elements=n_elements))
 
 
 def _chain_transmission(model, theta, w, h, water):
