@@ -257,3 +257,25 @@ def test_design_without_transducers_shades_no_transducer_band(tmp_path, saved, m
     assert band_label("default design band (no transducers in the config)") == "design band (default; no transducers)"
     assert band_label("the rig's transducer pair (-6 dB)") == "transducer band"
     assert band_label("design.band") == "design.band"
+
+
+def test_frequency_response_figure_stops_where_record_and_model_say_nothing():
+    """The shown band is the coherent band around the model's peak widened 1.5x (a lone coherent
+    noise point beyond it does not extend it, one incoherent bin inside does not end it), and
+    above at most twice where the model falls 60 dB below its peak."""
+    from mbus_framework.pipeline.figures import shown_band
+
+    f = np.linspace(0.0, 10e6, 101)
+    mag = np.exp(-f / 1e6)  # peak at 0; falls 60 dB (1e-3) at ln(1000) MHz = 6.9 MHz
+    coherence = np.where(f <= 2e6, 0.9, 0.1)
+    assert shown_band(f, mag, coherence) == pytest.approx((0.0, 3e6))  # 1.5 x 2 MHz
+    coherence[60] = 0.7  # a lone coherent point at 6 MHz
+    coherence[10] = 0.3  # one incoherent bin at 1 MHz
+    assert shown_band(f, mag, coherence) == pytest.approx((0.0, 3e6))
+    assert shown_band(f, mag, np.full_like(f, 0.9)) == pytest.approx((0.0, 2 * 6.9e6))
+    assert shown_band(f, np.zeros_like(f), coherence) is None
+    # a band-pass record (a compensated one): incoherent below 3 MHz, peak at 5 MHz
+    bandpass = np.exp(-(((f - 5e6) / 1e6) ** 2))
+    coh = np.where((f >= 3e6) & (f <= 7e6), 0.9, 0.05)
+    lo, hi = shown_band(f, bandpass, coh)
+    assert lo == pytest.approx(3e6 / 1.5) and hi == pytest.approx(min(1.5 * 7e6, 2 * f[bandpass >= 1e-3][-1]))

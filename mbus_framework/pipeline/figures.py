@@ -20,6 +20,7 @@ import numpy as np
 from scipy import special
 
 from mbus_framework.engine.control_interop import transfer_function_estimate
+from mbus_framework.engine.moving import moving_average
 from mbus_framework.interfaces.excitation import Waveform, power_spectrum
 from mbus_framework.pipeline.recorded_input import welch_spectrum
 from mbus_framework.pipeline.units import UNKNOWN, label_axis
@@ -178,20 +179,39 @@ def correlation_figure(d: FitData, fig: "Figure | None" = None, lags: int = LAGS
     return fig
 
 
+def shown_band(f: np.ndarray, model_mag: np.ndarray, coherence: np.ndarray,
+               smooth: int = 5) -> tuple[float, float] | None:
+    """(f_lo, f_hi) [Hz] of the frequency-response figure. The coherent band is the run of
+    frequencies around the model's peak where the measured coherence, averaged over ``smooth``
+    neighbouring bins (a Welch coherence from few segments scatters bin to bin), stays at least
+    0.5; the figure shows it widened by 1.5x on both sides, and above at most twice where the
+    model falls 60 dB below its peak. Beyond, the H1 estimate and the model's phase are noise
+    (e.g. outside a compensator's band)."""
+    if not np.any(model_mag > 0):
+        return None
+    lo, hi = 0.0, 2 * f[np.flatnonzero(model_mag >= 1e-3 * model_mag.max())[-1]]
+    peak = int(np.argmax(model_mag))
+    c = moving_average(np.asarray(coherence, dtype=float), min(smooth, coherence.size))
+    if c[peak] >= 0.5:
+        above = np.flatnonzero(c[peak:] < 0.5)
+        below = np.flatnonzero(c[: peak + 1] < 0.5)
+        hi = min(hi, 1.5 * f[peak + above[0] - 1] if above.size else hi)
+        lo = f[below[-1] + 1] / 1.5 if below.size else 0.0
+    return float(lo), float(hi)
+
+
 def frequency_response_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     """Measured vs model frequency response: H1 = P_uy / P_uu of the record and of the model's
     prediction, by the same estimator (Welch, a quarter of the record per segment), so both carry
-    the same windowing; measured points with coherence below 0.5 are faded. Shown up to twice the
-    frequency where the model's response falls 60 dB below its peak."""
+    the same windowing; measured points with coherence below 0.5 are faded. Shown up to
+    :func:`shown_band`: outside it neither the record nor the model says anything."""
     fig = _new(fig, (9, 6))
     ax_m, ax_p = fig.subplots(2, 1, sharex=True)
     meas = transfer_function_estimate(d.u, d.y, d.dt)
     model = transfer_function_estimate(d.u, d.yhat, d.dt)
-    mag = np.abs(model.H)
-    if np.any(mag > 0):  # up to twice where the model falls 60 dB below its peak: beyond, only noise
-        shown = meas.f <= 2 * meas.f[np.flatnonzero(mag >= 1e-3 * mag.max())[-1]]
-        meas = type(meas)(meas.f[shown], meas.H[shown], meas.coherence[shown])
-        model = type(model)(model.f[shown], model.H[shown], model.coherence[shown])
+    band = shown_band(meas.f, np.abs(model.H), meas.coherence)
+    if band is not None:
+        meas, model = meas.within(*band), model.within(*band)
     good = meas.coherence >= 0.5
     f_mhz = meas.f / 1e6
     phase_m = np.degrees(np.unwrap(np.angle(meas.H)))
