@@ -30,7 +30,10 @@ Counted, against the Cramer-Rao standard errors at the truth (known noise, untru
 * ``coverage``: the fraction of parameter estimates whose reported 95 % interval holds the
   truth (practically identifiable cases). Target: 92-98 %.
 * ``stress``: every parameter of a noise-dominated record carries an unreliability warning.
-* solver wall time per case (failed cases included): median <= 2 s, 90th percentile <= 10 s.
+* solver wall time per case (failed cases included): median <= 2 s, 90th percentile <= 10 s
+  (issue 24 asks median <= 0.5 s and p90 <= 2 s: reported beside, not counted in ``passed``).
+* ``warning_rule`` (issue 28): no warning on a passing run whose reported relative SEs are all
+  below 5 %; a warning on every run with a reported relative SE above 20 %.
 
 Writes ``--out`` (settings, machine, summary, every case) and prints the summary.
 """
@@ -224,6 +227,7 @@ def run_case(case: dict) -> dict:
     covered = {n: (bool(ci[n][0] <= theta[i] <= ci[n][1]) if n in ci else None) for i, n in enumerate(names)}
     warnings = list(doc.get("warnings", []))
     reliable = (doc["fit"].get("information") or {}).get("reliable", True)
+    rel_se = (doc.get("uncertainty") or {}).get("relative_standard_errors") or {}
     out.update(
         estimate=dict(zip(names, est.tolist())),
         error_percent=dict(zip(names, (100 * (est / theta - 1)).tolist())),
@@ -232,6 +236,7 @@ def run_case(case: dict) -> dict:
         covered=covered,
         warned=bool(warnings),
         warnings=warnings,
+        reported_relative_se={n: (float(rel_se[n]) if rel_se.get(n) is not None else None) for n in names},
         all_parameters_warned=bool(not reliable or all(any(n in w for w in warnings) for n in names)),
         accepted=bool(doc["strategy"].get("accepted")),
         accepted_because=doc["strategy"].get("accepted_because"),
@@ -248,6 +253,27 @@ def run_case(case: dict) -> dict:
 def _spread(values) -> dict:
     v = np.asarray(values, dtype=float)
     return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "max": float(v.max())}
+
+
+def warning_rule(fits: list[dict], quiet_below: float = 0.05, warn_above: float = 0.20) -> dict:
+    """The warning rule of issue 28 over the fits: no warning on a run that passes (``ok``) with
+    every reported relative SE below ``quiet_below``; a warning on every run with a reported
+    relative SE above ``warn_above`` (a missing or infinite SE counts as above)."""
+    def worst(c):
+        v = [x for x in (c.get("reported_relative_se") or {}).values()]
+        return np.inf if not v or any(x is None or not np.isfinite(x) for x in v) else max(v)
+
+    done = [c for c in fits if c.get("error") is None and "reported_relative_se" in c]
+    quiet = [c for c in done if c["ok"] and worst(c) < quiet_below]
+    loud = [c for c in done if worst(c) > warn_above]
+    false_alarms = [c for c in quiet if c["warned"]]
+    missed = [c for c in loud if not c["warned"]]
+    return {"quiet_below": quiet_below, "warn_above": warn_above,
+            "passing_runs_with_all_se_below": len(quiet), "of_which_warned": len(false_alarms),
+            "false_alarms": [{"index": c["index"], "name": c["name"], "warnings": c["warnings"]} for c in false_alarms],
+            "runs_with_an_se_above": len(loud), "of_which_not_warned": len(missed),
+            "missed": [{"index": c["index"], "name": c["name"], "reported_relative_se": c["reported_relative_se"]}
+                       for c in missed]}
 
 
 def summarise(cases: list[dict], wall: float, workers: int) -> dict:
@@ -289,6 +315,7 @@ def summarise(cases: list[dict], wall: float, workers: int) -> dict:
         "wall_time_s": wall,
         "workers": workers,
         "by_group": by_group,
+        "warning_rule": warning_rule(fits),
         "misses": [{"index": c["index"], "group": c["group"], "name": c["name"], "start": c["start"],
                     "setting": c["setting"], "noise": c["noise"], "identifiable": c["identifiable"],
                     "warned": c["warned"], "max_error_over_crb": max((c.get("error_over_crb") or {"x": None}).values(),
@@ -305,6 +332,12 @@ def summarise(cases: list[dict], wall: float, workers: int) -> dict:
         "noise-dominated records warned": s["stress_all_parameters_warned"] == s["stress_cases"],
         "median time <= 2 s": s["time_per_case_s"]["median"] <= 2.0,
         "90th percentile <= 10 s": s["time_per_case_s"]["p90"] <= 10.0,
+        "no warning on a passing run with every relative SE < 5 %": s["warning_rule"]["of_which_warned"] == 0,
+        "a warning on every run with a relative SE > 20 %": s["warning_rule"]["of_which_not_warned"] == 0,
+    }
+    s["issue_24_speed_targets"] = {  # reported beside the others; not part of "passed"
+        "median time <= 0.5 s": s["time_per_case_s"]["median"] <= 0.5,
+        "90th percentile <= 2 s": s["time_per_case_s"]["p90"] <= 2.0,
     }
     s["passed"] = all(s["targets"].values())
     return s
@@ -372,7 +405,15 @@ def print_summary(s: dict) -> None:
     for g, v in s["by_group"].items():
         print(f"  {g:<10} {v['ok_identifiable']}/{v['identifiable']} identifiable ok, {v['ok_all']}/{v['cases']} all, "
               f"median {v['median_time_s']:.2f} s")
-    for name, ok in s["targets"].items():
+    w = s["warning_rule"]
+    print(f"warning rule: {w['of_which_warned']} of {w['passing_runs_with_all_se_below']} passing runs with every "
+          f"relative SE < {100 * w['quiet_below']:g} % warned; {w['of_which_not_warned']} of "
+          f"{w['runs_with_an_se_above']} runs with a relative SE > {100 * w['warn_above']:g} % not warned")
+    for c in w["false_alarms"][:10]:
+        print(f"  false alarm: case {c['index']} {c['name']}: {c['warnings'][0][:160]}")
+    for c in w["missed"][:10]:
+        print(f"  missed: case {c['index']} {c['name']}: {c['reported_relative_se']}")
+    for name, ok in {**s["targets"], **s["issue_24_speed_targets"]}.items():
         print(f"  [{'PASS' if ok else 'FAIL'}] {name}")
 
 
