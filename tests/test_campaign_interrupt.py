@@ -1,15 +1,23 @@
 """Ctrl-C while a campaign writes its outputs: the outputs are written once more, undisturbed,
-campaign.json says "interrupted", and the table holds every finished row."""
+campaign.json says "interrupted", and the table holds every finished row. Ctrl-C while the
+LocalCluster starts: the worker processes ignore it (no traceback) and the client stops at once."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pandas as pd
+import psutil
 import pytest
 
-from campaign_helpers import write_campaign
+from campaign_helpers import ENV, write_campaign
 from mbus_framework.campaigns import CampaignInterrupted, run_campaign
 from mbus_framework.campaigns import runner
+from mbus_framework.campaigns.quiet_start import workers_ignore_sigint
 
 
 def test_ctrl_c_while_the_table_is_written(tmp_path, monkeypatch):
@@ -37,3 +45,52 @@ def test_ctrl_c_while_the_table_is_written(tmp_path, monkeypatch):
     table = pd.read_csv(out / "properties.csv")
     assert table["sample_id"].tolist() == ["s0", "s1", "s2"]
     assert table["E_sigma"].tolist() == first.table["E_sigma"].tolist()
+
+
+def test_processes_spawned_for_a_local_cluster_start_with_ctrl_c_ignored():
+    """The spawn wrapper: a child started inside the block has SIGINT ignored from its start (no
+    handler of ours runs in it), one started after it gets Python's KeyboardInterrupt handler."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = multiprocessing.get_context("spawn")
+    with workers_ignore_sigint(), ProcessPoolExecutor(1, mp_context=ctx) as pool:
+        assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.SIG_IGN
+    with ProcessPoolExecutor(1, mp_context=ctx) as pool:
+        assert pool.submit(signal.getsignal, signal.SIGINT).result(timeout=120) == signal.default_int_handler
+
+
+def test_ctrl_c_while_the_local_cluster_starts_prints_no_worker_traceback(tmp_path):
+    """Ctrl-C at a terminal (SIGINT to the whole process group) while the LocalCluster's worker
+    processes are still importing: no worker traceback, no Dask start-up error, exit 130 at once,
+    campaign.json "interrupted", and no process of the campaign left behind."""
+    rows = [{"sample_id": f"s{i}", "cultivar": "x", "backend.options.seed": i} for i in range(2)]
+    path = write_campaign(tmp_path, rows)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "mbus_framework.cli", str(path), "-o", str(out), "--workers", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env=ENV)
+    parent, deadline = psutil.Process(proc.pid), time.monotonic() + 120
+    while not (workers := _spawned(parent)):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.005)
+    time.sleep(0.3)  # the workers are importing Python, numpy, distributed (seconds)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err and "Nanny" not in err, err
+    assert err.strip().splitlines()[-1] == "mbus-run: interrupted: 0 of 2 fits finished; run again to continue"
+    assert json.loads((out / "campaign.json").read_text())["status"] == "interrupted"
+    assert not [w for w in workers if w.is_running() and w.status() != psutil.STATUS_ZOMBIE]
+
+
+def _spawned(parent) -> list:
+    """The multiprocessing (spawn) children of ``parent``: the LocalCluster's worker processes."""
+    found = []
+    for child in parent.children(recursive=True):
+        try:
+            if "--multiprocessing-fork" in child.cmdline():
+                found.append(child)
+        except psutil.Error:  # gone, or a zombie
+            pass
+    return found

@@ -74,7 +74,7 @@ class MbusWorkerSetup(WorkerPlugin):
 def dask_setup(worker) -> None:  # noqa: ARG001 - Dask's preload hook
     """Preload of LocalCluster workers: ignore SIGINT, so the terminal's Ctrl-C (sent to the
     whole process group) stops only the client, which then cancels the fits and closes the
-    cluster."""
+    cluster. (Spawned workers ignore it from their start already: :mod:`.quiet_start`.)"""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
