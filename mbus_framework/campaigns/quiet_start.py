@@ -1,4 +1,5 @@
-"""LocalCluster worker processes that start with SIGINT (Ctrl-C) ignored.
+"""A Ctrl-C that stops a LocalCluster quietly: workers that start with SIGINT ignored, a start-up
+the client leaves at once, and no heartbeat error from a worker that outlives its scheduler.
 
 A terminal's Ctrl-C goes to the whole foreground process group: the client and the worker
 processes it is starting. A worker still importing (``site``, numpy, distributed) died with a
@@ -12,9 +13,16 @@ wrapper, ``trap '' INT; exec PYTHON "$@"``. An ignored signal stays ignored acro
 default at start-up, so the worker ignores Ctrl-C from its first instruction. The client's own
 handler is untouched: the user's Ctrl-C still stops the client at once. (Blocking SIGINT in the
 client would not do: the signal mask is not passed on to spawned children.)
+
+:func:`start_cluster` builds the cluster in a helper thread, so a Ctrl-C does not cancel Dask's
+start-up half way. :func:`quiet_heartbeat_errors` (run in each LocalCluster worker by its
+preload) drops the worker's "Failed to communicate with scheduler during heartbeat" traceback:
+a LocalCluster's scheduler lives in the client's process, so it is gone only when the client
+closes it, and a worker busy with a fit when the client stops may heartbeat once more.
 """
 from __future__ import annotations
 
+import logging
 import os
 import shlex
 import tempfile
@@ -106,3 +114,20 @@ def start_cluster(factory, *args, **kwargs):
     if "error" in box:
         raise box["error"]
     return box["cluster"]
+
+
+#: The message of ``distributed.worker`` that :func:`quiet_heartbeat_errors` drops.
+HEARTBEAT_ERROR = "Failed to communicate with scheduler during heartbeat."
+
+
+class _NoHeartbeatError(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.msg != HEARTBEAT_ERROR
+
+
+def quiet_heartbeat_errors(logger: logging.Logger | None = None) -> logging.Filter:
+    """Drop :data:`HEARTBEAT_ERROR` records of ``logger`` (default ``distributed.worker``);
+    returns the filter (to remove it again)."""
+    quiet = _NoHeartbeatError()
+    (logger or logging.getLogger("distributed.worker")).addFilter(quiet)
+    return quiet
