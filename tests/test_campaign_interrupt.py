@@ -18,7 +18,8 @@ import pytest
 from campaign_helpers import BASE, ENV, write_campaign
 from mbus_framework.campaigns import CampaignInterrupted, run_campaign
 from mbus_framework.campaigns import runner
-from mbus_framework.campaigns.quiet_start import HEARTBEAT_ERROR, quiet_heartbeat_errors, workers_ignore_sigint
+from mbus_framework.campaigns.quiet_start import (HEARTBEAT_ERROR, quiet_heartbeat_errors, start_cluster,
+                                                workers_ignore_sigint)
 
 
 def test_ctrl_c_while_the_table_is_written(tmp_path, monkeypatch):
@@ -119,3 +120,21 @@ def _spawned(parent) -> list:
         except psutil.Error:  # gone, or a zombie
             pass
     return found
+
+
+def test_a_local_cluster_that_cannot_start_is_a_one_line_error(monkeypatch):
+    """The cluster is built in a helper thread: its error still reaches the caller as before."""
+    import distributed
+
+    from mbus_framework.campaigns.cluster import ClusterError
+    from mbus_framework.campaigns.executor import dask_client
+
+    def refused(**kwargs):
+        raise OSError(98, "Address already in use")
+
+    monkeypatch.setattr(distributed, "LocalCluster", refused)
+    with pytest.raises(ClusterError, match=r"^cannot start a Dask LocalCluster of 1 worker processes: \[Errno 98\] "
+                                           r"Address already in use$"):
+        with dask_client(workers=1):
+            pass
+    assert start_cluster(dict, workers=1) == {"workers": 1}
