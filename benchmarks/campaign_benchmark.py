@@ -20,6 +20,12 @@ run the benchmark measures, on the same records:
 (b) t_fit: ``pipeline.run.execute`` of each record in this (warm) process, the work itself,
     in every round before the two campaigns;
 (c) one ``mbus-run CONFIG`` process per record (a new Python, imports, plugin discovery);
+(d) the same campaign on a cluster started as docs/campaigns.md says for a real one: a
+    ``dask scheduler`` process and a ``dask worker --nworkers 1 --nthreads 1`` process (the
+    worker started by Dask's nanny, which sets ``MALLOC_TRIM_THRESHOLD_=65536``), reached with
+    ``--scheduler`` (so mbus registers its worker plugin, which resets glibc's allocator
+    thresholds), in the same rounds: its worker's median CPU seconds per fit against the
+    1-worker LocalCluster's (target: ratio at most 1.15);
 
 and reports the per-fit overhead of (a) with 1 worker, wall/N - mean t_fit, against that of
 (c), mean process wall - mean t_fit, in wall seconds and in CPU seconds (the workers' CPU time
@@ -37,6 +43,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -47,12 +54,15 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "tests")]  # campaign_helpers: Dask processes started as a user starts them
 POTATO = ROOT / "configs" / "potato.yaml"
 #: Truths are drawn log-uniformly within x/÷ SPREAD of configs/potato.yaml's truth (the Table 6.2
 #: "after compensation" means, eta_tau at its minimum) [Pa, Pa s].
 POTATO_TRUTH = {"E_sigma": 2.42e10, "eta_sigma": 7.18e3, "E_tau": 6.56e9, "eta_tau": 5.14e3}
 SPREAD = 1.5
 TARGET_SPEEDUP = 1.7
+#: Per-fit CPU of a nanny-started worker over that of a LocalCluster worker: at most this.
+TARGET_NANNY_RATIO = 1.15
 
 
 def write_campaign(folder: Path, n: int, seed: int) -> Path:
@@ -79,17 +89,37 @@ def _warm_worker() -> int:
     return os.getpid()
 
 
-def _cpu_seconds() -> float:
-    import psutil
+def _usage() -> tuple[float, float, int]:
+    """This process's CPU seconds (user + system, all threads), system seconds, minor page faults."""
+    import resource
 
-    t = psutil.Process().cpu_times()
-    return t.user + t.system
+    u = resource.getrusage(resource.RUSAGE_SELF)
+    return u.ru_utime + u.ru_stime, u.ru_stime, u.ru_minflt
 
 
-def rounds(path: Path, out: Path, n_rounds: int) -> tuple[dict[int, dict], dict]:
-    """Both clusters up and warm; then, ``n_rounds`` times, every record in this process, the
-    campaign on 1 worker and on 2 workers (alternating spreads the machine's other load over
-    the three)."""
+def _malloc_tuned(dask_worker) -> bool:
+    return bool(getattr(dask_worker, "mbus_malloc_tuned", False))
+
+
+@contextmanager
+def nanny_cluster(folder: Path):
+    """A ``dask scheduler`` and one ``dask worker`` process as docs/campaigns.md says; yields
+    (the scheduler address, the worker command)."""
+    from campaign_helpers import free_port, processes, scheduler_cmd, wait_listening, worker_cmd
+
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    worker = worker_cmd(address, folder / "dask-worker")
+    with processes(scheduler_cmd(port), logs=folder / "scheduler-logs"):
+        wait_listening(port)
+        with processes(worker, logs=folder / "worker-logs"):
+            yield address, worker
+
+
+def rounds(path: Path, out: Path, n_rounds: int) -> tuple[dict[str, dict], dict]:
+    """The three clusters up and warm (LocalClusters of 1 and 2 workers, a nanny-started
+    worker); then, ``n_rounds`` times, every record in this process and the campaign on each
+    cluster (alternating spreads the machine's other load over them)."""
     from contextlib import ExitStack
 
     from mbus_framework.campaigns import run_campaign
@@ -100,43 +130,55 @@ def rounds(path: Path, out: Path, n_rounds: int) -> tuple[dict[int, dict], dict]
 
     tasks = plan_campaign(load_campaign(path), out / "plan")
     execute(tasks[0].configs[0], [], out / "warm-up", plots=False, source="warm-up")
-    runs: dict[int, list[dict]] = {1: [], 2: []}
+    names = {"local_1": 1, "local_2": 2, "nanny_1": 1}
+    runs: dict[str, list[dict]] = {name: [] for name in names}
     here = {"wall_s": [], "cpu_s": []}
-    starts = {}
+    starts, extra = {}, {}
     with ExitStack() as stack:
         clients = {}
-        for n in (1, 2):
+        for name, n in names.items():
             t0 = time.perf_counter()
-            clients[n] = stack.enter_context(dask_client(workers=n))
-            starts[n] = time.perf_counter() - t0
-            clients[n].run(_warm_worker)
+            if name.startswith("nanny"):
+                address, command = stack.enter_context(nanny_cluster(out / name))
+                clients[name] = stack.enter_context(dask_client(scheduler=address, timeout=120))
+                extra[name] = {"command": " ".join(command),
+                               "malloc_tuned": all(clients[name].run(_malloc_tuned).values())}
+            else:
+                clients[name] = stack.enter_context(dask_client(workers=n))
+            starts[name] = time.perf_counter() - t0
+            clients[name].run(_warm_worker)
         for r in range(n_rounds):
             for t in tasks:  # t_fit: the work itself, in this warm process
                 t0, c0 = time.perf_counter(), time.process_time()
                 execute(t.configs[0], [], out / f"here-{r}" / t.label, plots=False, source=t.label)
                 here["wall_s"].append(time.perf_counter() - t0)
                 here["cpu_s"].append(time.process_time() - c0)
-            for n, client in clients.items():
-                cpu0 = sum(client.run(_cpu_seconds).values())
+            for name, client in clients.items():
+                before = np.sum(list(client.run(_usage).values()), axis=0)
                 load0 = os.getloadavg()[0]
                 t0 = time.perf_counter()
-                result = run_campaign(path, out / f"w{n}-{r}", client=client, progress=False)
+                result = run_campaign(path, out / f"{name}-{r}", client=client, progress=False)
                 wall = time.perf_counter() - t0
-                cpu = sum(client.run(_cpu_seconds).values()) - cpu0
+                cpu, system, faults = np.sum(list(client.run(_usage).values()), axis=0) - before
                 fits = len(result.table)
-                runs[n].append({"wall_s": wall, "fit_phase_s": result.fit_phase_s, "fits": fits,
-                                "failed": len(result.failed), "fits_per_s": fits / result.fit_phase_s,
-                                "campaign_fits_per_s": fits / wall,
-                                "worker_cpu_s": cpu, "worker_cpu_s_per_fit": cpu / fits,
-                                "worker_cpu_share": cpu / (wall * n), "load_average_1min_before": load0})
+                runs[name].append({"wall_s": wall, "fit_phase_s": result.fit_phase_s, "fits": fits,
+                                   "failed": len(result.failed), "fits_per_s": fits / result.fit_phase_s,
+                                   "campaign_fits_per_s": fits / wall,
+                                   "worker_cpu_s": float(cpu), "worker_cpu_s_per_fit": float(cpu) / fits,
+                                   "worker_system_s_per_fit": float(system) / fits,
+                                   "worker_minor_faults_per_fit": float(faults) / fits,
+                                   "worker_cpu_share": float(cpu) / (wall * names[name]),
+                                   "load_average_1min_before": load0})
     cluster = {}
-    for n, rs in runs.items():
+    for name, rs in runs.items():
         best = max(rs, key=lambda x: x["fits_per_s"])
-        cluster[n] = {"workers": n, "cluster_start_s": starts[n], "rounds": rs, "best_fits_per_s": best["fits_per_s"],
-                      "median_fits_per_s": float(np.median([x["fits_per_s"] for x in rs])),
-                      "best_campaign_fits_per_s": max(x["campaign_fits_per_s"] for x in rs),
-                      "best_wall_s_per_fit": min(x["wall_s"] / x["fits"] for x in rs),
-                      "median_worker_cpu_s_per_fit": float(np.median([x["worker_cpu_s_per_fit"] for x in rs]))}
+        cluster[name] = {"workers": names[name], **extra.get(name, {}), "cluster_start_s": starts[name], "rounds": rs,
+                         "best_fits_per_s": best["fits_per_s"],
+                         "median_fits_per_s": float(np.median([x["fits_per_s"] for x in rs])),
+                         "best_campaign_fits_per_s": max(x["campaign_fits_per_s"] for x in rs),
+                         "best_wall_s_per_fit": min(x["wall_s"] / x["fits"] for x in rs),
+                         **{f"median_{k}": float(np.median([x[k] for x in rs]))
+                            for k in ("worker_cpu_s_per_fit", "worker_system_s_per_fit", "worker_minor_faults_per_fit")}}
     return cluster, here
 
 
@@ -187,7 +229,19 @@ def main(argv=None) -> int:
     n = args.samples
     best_here = min(float(np.mean(fit_wall[i:i + n])) for i in range(0, len(fit_wall), n))
     load_after = os.getloadavg()
-    one, two = cluster[1], cluster[2]
+    one, two, nanny = cluster["local_1"], cluster["local_2"], cluster["nanny_1"]
+    ratio = nanny["median_worker_cpu_s_per_fit"] / one["median_worker_cpu_s_per_fit"]
+    nanny_vs_local = {
+        "nanny_worker_cpu_s_per_fit": nanny["median_worker_cpu_s_per_fit"],
+        "local_cluster_worker_cpu_s_per_fit": one["median_worker_cpu_s_per_fit"],
+        "ratio": ratio,
+        "ratio_per_round": [a["worker_cpu_s_per_fit"] / b["worker_cpu_s_per_fit"]
+                            for a, b in zip(nanny["rounds"], one["rounds"])],
+        "system_s_per_fit": {"nanny": nanny["median_worker_system_s_per_fit"],
+                             "local_cluster": one["median_worker_system_s_per_fit"]},
+        "minor_faults_per_fit": {"nanny": nanny["median_worker_minor_faults_per_fit"],
+                                 "local_cluster": one["median_worker_minor_faults_per_fit"]},
+    }
     speedup = two["best_fits_per_s"] / one["best_fits_per_s"]
     median_speedup = two["median_fits_per_s"] / one["median_fits_per_s"]
     campaign_speedup = two["best_campaign_fits_per_s"] / one["best_campaign_fits_per_s"]
@@ -205,19 +259,22 @@ def main(argv=None) -> int:
         "records": {"count": args.samples, "config": f"configs/potato.yaml (truth per record within x/÷{SPREAD} of its truth)",
                     "seed": args.seed},
         "local_cluster": {"1_worker": one, "2_workers": two},
+        "nanny_cluster": {"1_worker": nanny},
+        "nanny_over_local_cpu_per_fit": nanny_vs_local,
         "speedup_2_over_1": {"best": speedup, "median": median_speedup, "whole_campaign_best": campaign_speedup},
         "in_process_fit": {"wall_s": _stats(fit_wall), "best_round_mean_wall_s": best_here, "cpu_s": _stats(fit_cpu)},
         "mbus_run_process_per_record": {"wall_s": _stats(proc_wall), "cpu_s": _stats(proc_cpu)},
         "overhead_per_fit": overhead,
-        "targets": {"speedup_at_least": TARGET_SPEEDUP, "speedup_met": speedup >= TARGET_SPEEDUP},
+        "targets": {"speedup_at_least": TARGET_SPEEDUP, "speedup_met": speedup >= TARGET_SPEEDUP,
+                    "nanny_cpu_ratio_at_most": TARGET_NANNY_RATIO, "nanny_cpu_ratio_met": ratio <= TARGET_NANNY_RATIO},
         "total_time_s": time.perf_counter() - t_start,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f} ({os.cpu_count()} cores)")
-    for r in (one, two):
+    for label, r in (("LocalCluster", one), ("LocalCluster", two), ("nanny-started", nanny)):
         shares = ", ".join(f"{100 * x['worker_cpu_share']:.0f}" for x in r["rounds"])
-        print(f"{r['workers']} worker(s): best {r['best_fits_per_s']:.3f} fits/s, median {r['median_fits_per_s']:.3f}; "
+        print(f"{label}, {r['workers']} worker(s): best {r['best_fits_per_s']:.3f} fits/s, median {r['median_fits_per_s']:.3f}; "
               f"whole campaign best {r['best_campaign_fits_per_s']:.3f} (cluster start {r['cluster_start_s']:.1f} s; worker CPU share per round {shares} %)")
     met = "met" if speedup >= TARGET_SPEEDUP else "NOT met"
     print(f"speed-up 2/1 workers: best {speedup:.2f}x, median {median_speedup:.2f}x (target {TARGET_SPEEDUP}x: {met}); "
@@ -228,6 +285,12 @@ def main(argv=None) -> int:
     print(f"per record, CPU (median): warm process {cpu_fit:.3f} s; campaign worker {one['median_worker_cpu_s_per_fit']:.3f} s "
           f"(overhead {overhead['cpu_s']['campaign_1_worker']:+.3f} s); one mbus-run process {np.mean(proc_cpu):.3f} s "
           f"(overhead {overhead['cpu_s']['process_per_record']:+.3f} s)")
+    met = "met" if ratio <= TARGET_NANNY_RATIO else "NOT met"
+    print(f"CPU per fit (median), nanny-started worker (dask scheduler + dask worker, mbus worker plugin: malloc tuned "
+          f"{nanny.get('malloc_tuned')}) {nanny['median_worker_cpu_s_per_fit']:.3f} s vs LocalCluster worker "
+          f"{one['median_worker_cpu_s_per_fit']:.3f} s: ratio {ratio:.3f} (target at most {TARGET_NANNY_RATIO}: {met}); "
+          f"system {nanny['median_worker_system_s_per_fit']:.3f} vs {one['median_worker_system_s_per_fit']:.3f} s, "
+          f"minor page faults {nanny['median_worker_minor_faults_per_fit']:.0f} vs {one['median_worker_minor_faults_per_fit']:.0f}")
     print(f"written to {args.out}")
     return 0
 

@@ -217,7 +217,21 @@ def _main(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - last resort: a bug, reported in one line
+        if _caused_by_interrupt(exc):  # e.g. "ImportError: initialization failed" when Ctrl-C hits an import
+            print("mbus-run: interrupted", file=sys.stderr)
+            return interrupts.exit_status()
         return _internal_error(exc)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """True when a Ctrl-C (or SIGTERM) is in ``exc``'s chain of causes."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _is_campaign_file(path: str) -> bool:

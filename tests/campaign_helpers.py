@@ -8,6 +8,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -122,3 +123,22 @@ def processes(*commands, cwd=None, logs: Path):
 
 def scheduler_cmd(port: int) -> list[str]:
     return [*SCHEDULER, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]
+
+
+def worker_cmd(address: str, local_directory: Path, *extra: str) -> list[str]:
+    """``dask worker ADDRESS --nworkers 1 --nthreads 1`` as docs/campaigns.md says: one
+    single-threaded worker process, started by Dask's nanny."""
+    return [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+            "--local-directory", str(local_directory), *extra]
+
+
+def wait_listening(port: int, timeout: float = 60.0) -> None:
+    """Return once something accepts TCP connections on 127.0.0.1:``port``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise AssertionError(f"no scheduler on port {port}")

@@ -17,8 +17,8 @@ import pandas as pd
 import psutil
 import pytest
 
-from campaign_helpers import (BASE, WORKER, draw_truths, free_port, processes, scheduler_cmd, simulate_record,
-                              truth_columns, write_campaign)
+from campaign_helpers import (BASE, draw_truths, free_port, processes, scheduler_cmd, simulate_record, truth_columns,
+                              worker_cmd, write_campaign)
 from mbus_framework.campaigns import run_campaign
 from mbus_framework.campaigns.executor import dask_client
 from mbus_framework.campaigns.worker import MARKER
@@ -258,8 +258,7 @@ def test_a_campaign_runs_on_a_scheduler_started_elsewhere(tmp_path):
 
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
-    worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-              "--local-directory", str(tmp_path / "dask-worker")]
+    worker = worker_cmd(address, tmp_path / "dask-worker")
     with processes(scheduler_cmd(port), logs=tmp_path / "logs"), processes(worker, logs=tmp_path / "wlogs"):
         with Client(address, timeout=60) as c:
             c.wait_for_workers(1, timeout=120)

@@ -231,6 +231,25 @@ def test_interrupt_exits_130_with_the_data_saved(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "out" / "measurement.csv").is_file()
 
 
+def test_an_interrupted_import_is_an_interruption_not_a_bug(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while a compiled module initialises surfaces as ``ImportError: initialization
+    failed`` (its cause the KeyboardInterrupt): exit 130, not an internal error (70)."""
+    import mbus_framework.cli as cli
+
+    def interrupted_import(path):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(cli, "_is_campaign_file", interrupted_import)
+    code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
+    assert (code, err.strip()) == (130, "mbus-run: interrupted")
+    monkeypatch.setattr(cli, "_is_campaign_file", lambda path: 1 / 0)  # a real bug is still one
+    code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
+    assert code == 70 and "internal error: ZeroDivisionError" in err
+
+
 def test_instrument_error_exits_3(tmp_path, capsys, monkeypatch):
     from mbus_plugins.backends.simulated import SimulatedBackend
 

@@ -10,7 +10,6 @@ import hashlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,8 +20,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from campaign_helpers import (BASE, ENV, WORKER, draw_truths, free_port, processes, scheduler_cmd,
-                              simulate_record, write_campaign)
+from campaign_helpers import (BASE, ENV, draw_truths, free_port, processes, scheduler_cmd, simulate_record,
+                              wait_listening, worker_cmd, write_campaign)
 from mbus_framework.campaigns import run_campaign
 from mbus_framework.campaigns.attempt import ATTEMPT_FILE, CampaignLock
 from mbus_framework.campaigns.cluster import ClusterError, insecure_warning
@@ -32,15 +31,6 @@ from mbus_framework.cli import main
 from mbus_framework.errors import RunFolderError
 
 PROPS = ["E_sigma", "eta_sigma", "E_tau", "eta_tau"]
-def wait_listening(port: int) -> None:
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            return
-        except OSError:
-            time.sleep(0.1)
-    raise AssertionError(f"no scheduler on port {port}")
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +44,7 @@ def cluster(tmp_path_factory):
         (cwd / name).write_text("t,u,y\n0,0,0\n1e-7,1,decoy\n")  # unreadable: any read fails the row
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
-    worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-              "--local-directory", str(root / "dask-worker")]
+    worker = worker_cmd(address, root / "dask-worker")
     with processes(scheduler_cmd(port), logs=root / "logs"):
         wait_listening(port)
         with processes(worker, cwd=cwd, logs=root / "wlogs"):
@@ -264,8 +253,7 @@ def test_a_campaign_runs_on_a_tls_secured_cluster(tmp_path, monkeypatch):
     tls = ["--tls-ca-file", str(cert), "--tls-cert", str(cert), "--tls-key", str(key)]
     port = free_port()
     address = f"tls://127.0.0.1:{port}"
-    worker = [*WORKER, address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard", *tls,
-              "--local-directory", str(tmp_path / "dask-worker")]
+    worker = worker_cmd(address, tmp_path / "dask-worker", *tls)
     truths = draw_truths(1, seed=71)
     rows = [{"sample_id": "t0", "cultivar": "x", **{f"backend.options.truth.{k}": repr(v) for k, v in truths[0].items()}}]
     path = write_campaign(tmp_path, rows)

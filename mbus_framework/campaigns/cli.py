@@ -6,6 +6,7 @@ Exit status: 0 when every sample was fitted, 1 when some failed (the summary and
 """
 from __future__ import annotations
 
+import logging
 import signal
 import sys
 import threading
@@ -24,16 +25,17 @@ def run_from_cli(args) -> int:
     terminated: list[int] = []
     previous = _terminate_as_interrupt(terminated)
     try:
-        result = run_campaign(
-            args.config,
-            args.out,
-            overrides=args.overrides,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            timeout=getattr(args, "timeout", None),
-            plots=False if args.no_plots else None,
-            progress=False if args.quiet else None,
-        )
+        with _dask_errors_only():
+            result = run_campaign(
+                args.config,
+                args.out,
+                overrides=args.overrides,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                timeout=getattr(args, "timeout", None),
+                plots=False if args.no_plots else None,
+                progress=False if args.quiet else None,
+            )
     except CampaignError as exc:
         for line in exc.lines:
             print(f"mbus-run: error: {line}", file=sys.stderr)
@@ -47,6 +49,15 @@ def run_from_cli(args) -> int:
             signal.signal(signal.SIGTERM, previous)
     print(result.out_dir if args.quiet else summary_text(result))
     return 1 if result.failed else 0
+
+
+def _dask_errors_only():
+    """Dask's own log lines at ERROR and above only, for the whole run: a LocalCluster shows
+    only those while it runs, and its INFO lines of connections closing after a Ctrl-C (with a
+    traceback) are not the user's business."""
+    from distributed.utils import silence_logging_cmgr
+
+    return silence_logging_cmgr(logging.ERROR)
 
 
 def _terminate_as_interrupt(terminated: list[int]):

@@ -23,6 +23,7 @@ from urllib.parse import urlsplit
 from distributed import WorkerPlugin
 
 from mbus_framework import __version__
+from mbus_framework.campaigns.quiet_start import quiet_heartbeat_errors
 from mbus_framework.errors import MbusError
 
 #: glibc ``mallopt`` parameters and the values set on every worker: freed memory is returned to
@@ -74,9 +75,11 @@ class MbusWorkerSetup(WorkerPlugin):
 def dask_setup(worker) -> None:  # noqa: ARG001 - Dask's preload hook
     """Preload of LocalCluster workers: ignore SIGINT, so the terminal's Ctrl-C (sent to the
     whole process group) stops only the client, which then cancels the fits and closes the
-    cluster."""
+    cluster. (Spawned workers ignore it from their start already.) Also drops the heartbeat
+    error of a worker still busy when the client closes the cluster (:mod:`.quiet_start`)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_heartbeat_errors()
 
 
 def host_port(address: str) -> tuple[str, str, int | None]:

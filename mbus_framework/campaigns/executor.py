@@ -8,6 +8,8 @@ our client disconnects). Each fit is one Dask task; a worker process imports mbu
 runs any number of fits. Workers of an existing cluster need mbus installed (checked before the
 first task: :mod:`~mbus_framework.campaigns.cluster`, which also tunes every worker's malloc) and
 must see the data files and the output folder at the same paths (a shared file system).
+A LocalCluster's workers ignore Ctrl-C from their start; a Ctrl-C while it starts stops the
+client at once and the half-started cluster quietly (:mod:`.quiet_start`).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, TypeVar
 
 from mbus_framework.campaigns.cluster import ClusterError, check_workers, insecure_warning, probe, register
+from mbus_framework.campaigns.quiet_start import start_cluster, workers_ignore_sigint
 
 PRELOAD = "mbus_framework.campaigns.cluster"  # its dask_setup runs first in each LocalCluster worker
 
@@ -84,15 +87,16 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
     cluster = None
     try:
         try:
-            with _glibc_malloc_defaults():
-                cluster = LocalCluster(
+            with _glibc_malloc_defaults(), workers_ignore_sigint():  # Ctrl-C stops the client, which closes them
+                cluster = start_cluster(
+                    LocalCluster,
                     n_workers=n,
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=":0",
                     silence_logs=logging.ERROR,
                     env={**WORKER_ENV, **{k: os.environ[k] for k in WORKER_ENV if k in os.environ}},
-                    preload=[PRELOAD],  # worker processes ignore the terminal's Ctrl-C: the client stops them
+                    preload=[PRELOAD],  # and once started, on any start method
                 )
         except (OSError, TimeoutError, RuntimeError) as exc:
             first = (str(exc).splitlines() or [type(exc).__name__])[0]
