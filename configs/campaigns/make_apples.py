@@ -24,8 +24,8 @@ and 0.15 (E_tau) on average. Error sources between the MBUS values and the panel
 * **two halves of one apple** (Section 7.2.1: one half is measured, the other eaten, 1-4 h
   later): ln E_sigma,half = ln E_sigma + HALF_SD Z and likewise for E_tau, HALF_SD = 5 %;
 * **panel noise**: each assessor scores with an own offset and gain and noise (``PANEL``;
-  :mod:`mbus_framework.analysis.crispness.virtual_panel`), sized from Table 7.1 (assessor
-  means 4.4-7.0, SDs 1.4-2.2);
+  :mod:`mbus_framework.analysis.crispness.virtual_panel`): offsets SD 0.7, gains SD 0.12,
+  noise SD 1.0 (the assessor means spread 4.3-6.3, Table 7.1's 4.4-7.0);
 * **MBUS measurement noise**: the rig's 5 % output noise per record, three records averaged.
 
 ``--stand-in-table`` writes, without running the campaign, a table in the campaign-table
