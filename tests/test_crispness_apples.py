@@ -173,6 +173,7 @@ def test_relation_is_sized_from_table_7_4():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)  # a full campaign and analysis; longer than the default 900 s on a loaded machine
 def test_shipped_campaign_reproduces_chapter_7(tmp_path):
     """mbus-run the shipped apples campaign (about 2-3 CPU minutes), then the documented crispness
     command: two inputs (k_sigma, k_tau) predict better than four, and k_sigma moves the two-input
