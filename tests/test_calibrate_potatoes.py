@@ -64,14 +64,27 @@ def test_generator_reproduces_the_shipped_files(tmp_path):
 def test_truth_spans_the_documented_range():
     gen = _generator()
     sheet = pd.read_csv(FOLDER / "samples.csv")
-    table_6_2_after = {"E_sigma": (4.84e9, 7.41e10), "eta_sigma": (4.87e2, 3.83e4), "E_tau": (1.30e9, 2.26e10),
-                       "eta_tau": (3e3, 2.6e4)}  # eta_tau capped where the shear parameters stay identifiable
-    for prop, (lo, hi) in table_6_2_after.items():
+    for prop, (lo, hi) in gen.TRUTH_RANGE.items():
         truth = sheet[f"backend.options.truth.{prop}"]
         assert lo <= truth.min() and truth.max() <= hi, prop
-        a, b, _, x_lo, x_hi = gen.RELATION[prop]
+        a, b, x_lo, x_hi = gen.RELATION[prop]
         x = sheet[f"true_conv_{prop}"]
         assert x_lo <= x.min() and x.max() <= x_hi
+        assert a + b * x_lo > 0  # the line itself stays positive: the multiplicative scatter keeps truths > 0
+    # Table 6.2 "after compensation" SDs follow from Table 6.1 (SD = slope SD_conv / r); the drawn truths'
+    # spread is of that size (E_sigma 1.82e10, eta_sigma 8.70e3, E_tau 4.94e9 Pa)
+    for prop, sd in (("E_sigma", 1.82e10), ("eta_sigma", 8.70e3), ("E_tau", 4.94e9)):
+        assert 0.5 * sd < sheet[f"backend.options.truth.{prop}"].std() < 2.0 * sd, prop
+
+
+def test_heterogeneity_keeps_the_line_as_the_conditional_mean():
+    """E[exp(s Z) / c(s)] = 1 for Z normal truncated at Z_MAX (Monte Carlo against the closed form)."""
+    gen = _generator()
+    rng = np.random.default_rng(3)
+    z = gen.truncated_normal(rng, 400_000)
+    assert np.abs(z).max() <= gen.Z_MAX
+    for s in (0.2, 0.5, 0.9):
+        assert np.mean(np.exp(s * z)) / gen.lognormal_mean(s) == pytest.approx(1.0, abs=3e-3), s
 
 
 def _mbus_table(rel_se=0.002, seed=0):
@@ -102,7 +115,8 @@ def test_calibration_recovers_the_known_relation(calibrated):
         row = reg.loc[prop]
         assert row.slope_ci_low <= slope <= row.slope_ci_high, prop
         assert row.intercept_ci_low <= intercept <= row.intercept_ci_high, prop
-        assert row.r_p < 0.01
+        # Table 6.1 stars every r, but its E_tau r = 0.352 at N = 30 has p = 0.056 (t = 1.99)
+        assert row.r_p < (0.1 if prop == "E_tau" else 0.01), prop
 
 
 def test_numbers_agree_with_statsmodels_and_scipy_run_directly(calibrated):
@@ -129,30 +143,49 @@ def test_numbers_agree_with_statsmodels_and_scipy_run_directly(calibrated):
     assert t62.loc[("Conventionally measured", "Mean"), "E_tau"] == pytest.approx(conv.conv_E_tau.mean(), rel=1e-4)
 
 
-def test_conventional_values_measure_the_generator_truth(calibrated):
+#: Table 6.1 (dissertation): r of MBUS on conventional, N = 30
+TABLE_6_1_R = {"uncompensated": {"E_sigma": 0.770, "eta_sigma": 0.645, "E_tau": 0.617, "eta_tau": 0.491},
+               "compensated": {"E_sigma": 0.780, "eta_sigma": 0.568, "E_tau": 0.352, "eta_tau": 0.476}}
+
+
+def test_correlations_are_those_of_table_6_1(calibrated):
+    """Through the shipped conventional records (fitted by calibrate) and MBUS estimates of the
+    shipped truths, r is Table 6.1's compensated r: the campaign carries its error sources."""
+    reg = pd.read_csv(calibrated / "calibration" / "regression.csv").set_index("property")
+    for prop, r in TABLE_6_1_R["compensated"].items():
+        assert reg.loc[prop, "r"] == pytest.approx(r, abs=0.03), prop
+    assert reg.r.idxmin() == "E_tau" and reg.r.idxmax() == "E_sigma"
+
+
+def test_conventional_values_measure_the_specimens(calibrated):
+    """calibrate's conventional values are the specimens' (5 % from the slice's own value x_p)."""
     conv = pd.read_csv(calibrated / "calibration" / "conventional_samples.csv", dtype={"sample_id": str})
-    sheet = pd.read_csv(FOLDER / "samples.csv", dtype={"sample_id": str})
-    data = conv.merge(sheet, on="sample_id")
+    draw = _generator().draw_samples()
+    data = conv.merge(draw, on="sample_id")
     assert len(data) == 30 and (data.conv_E_tau_n == 3).all() and (data.conv_E_sigma_n == 1).all()
-    for prop, tol in (("E_sigma", 0.002), ("eta_sigma", 0.02), ("E_tau", 0.06), ("eta_tau", 0.06)):
-        rel = data[f"conv_{prop}"] / data[f"true_conv_{prop}"] - 1
-        assert rel.abs().max() < tol, prop  # compression: fit noise; rheometer: 2 % specimen SD over 3
+    for prop, tol in (("E_sigma", 0.002), ("eta_sigma", 0.02), ("E_tau", 0.02), ("eta_tau", 0.02)):
+        rel = data[f"conv_{prop}"] / data[f"observed_conv_{prop}"] - 1
+        assert rel.abs().max() < tol, prop  # compression: fit noise; rheometer: 1 % point scatter
+        spread = data[f"conv_{prop}"] / data[f"true_conv_{prop}"] - 1
+        assert 0.01 < spread.std() < 0.1, prop  # the specimens differ from the slice (SPECIMEN_SD)
 
 
-def test_relation_is_recovered_95_percent_of_the_time_over_new_draws():
-    """The generator's design (noise in MBUS, 1-2 % noise in the conventional values) gives
-    95 % intervals that cover the true slope 95 % of the time."""
+def test_relation_is_recovered_over_new_draws():
+    """Over 150 new draws the 95 % intervals cover the true slope and intercept at least 95 % of
+    the time, and the sample r is Table 6.1's (the heterogeneity is sized per draw)."""
     gen = _generator()
     rng = np.random.default_rng(1)
     trials, hits = 150, {p: 0 for p in PROPS}
     for seed in range(trials):
         draw = gen.draw_samples(seed=seed)
-        for prop, (_, slope, *_rest) in gen.RELATION.items():
-            x = draw[f"true_conv_{prop}"] * (1 + 0.015 * rng.standard_normal(len(draw)))
+        for prop, (intercept, slope, *_rest) in gen.RELATION.items():
+            x = draw[f"observed_conv_{prop}"] * (1 + 0.005 * rng.standard_normal(len(draw)))
             fit = fit_line(x, draw[prop] * (1 + 0.002 * rng.standard_normal(len(draw))))
-            hits[prop] += fit.slope_ci_low <= slope <= fit.slope_ci_high
+            hits[prop] += (fit.slope_ci_low <= slope <= fit.slope_ci_high
+                           and fit.intercept_ci_low <= intercept <= fit.intercept_ci_high)
+            assert fit.r == pytest.approx(TABLE_6_1_R["compensated"][prop], abs=0.02), (seed, prop)
     for prop, n in hits.items():
-        assert 0.89 <= n / trials <= 0.995, (prop, n)
+        assert n / trials >= 0.95, (prop, n)
 
 
 @pytest.mark.slow
@@ -169,4 +202,21 @@ def test_campaign_run_recovers_the_relation(tmp_path):
     for prop, (intercept, slope, *_rest) in _generator().RELATION.items():
         assert reg.loc[prop, "slope_ci_low"] <= slope <= reg.loc[prop, "slope_ci_high"], prop
         assert reg.loc[prop, "intercept_ci_low"] <= intercept <= reg.loc[prop, "intercept_ci_high"], prop
+        assert reg.loc[prop, "r"] == pytest.approx(TABLE_6_1_R["compensated"][prop], abs=0.2), prop  # issue 28
     shutil.rmtree(tmp_path / "c", ignore_errors=True)
+
+
+@pytest.mark.slow
+def test_uncompensated_fits_overstate_the_shear_stiffness(tmp_path):
+    """Three slices through the virtual transducer pair without compensation (about 30-60 s CPU
+    each): the shear stiffness comes out several times too high, the direction of Table 6.2
+    (docs/analysis.md: the normal-direction properties come out lower, unlike Table 6.2)."""
+    from mbus_framework.api import run_config
+    from mbus_framework.pipeline.config import read_yaml
+
+    run = read_yaml(CAMPAIGN.parent / "potatoes_uncompensated.yaml")["campaign"]["run"]
+    sheet = pd.read_csv(FOLDER / "samples.csv").iloc[:3]
+    for _, row in sheet.iterrows():
+        keys = [c for c in sheet.columns if "." in c]
+        result = run_config(run, {k: row[k] for k in keys}, tmp_path / row.sample_id, plots=False, progress=False)
+        assert float(result.properties["E_tau"]) > 2.0 * row["backend.options.truth.E_tau"], row.sample_id
