@@ -18,8 +18,9 @@ from sklearn.base import clone
 from mbus_framework.analysis.crispness import plots
 from mbus_framework.analysis.crispness import report
 from mbus_framework.analysis.crispness.agreement import agreement, compare_lines, dependent_correlation_test, fisher_z_test
+from mbus_framework.analysis.crispness import validation as validation_settings
 from mbus_framework.analysis.crispness.validation import (
-    STRUCTURE_SUBSET, cross_validate, rank, ridge_baseline, sensitivities, structure_comparison, structure_label,
+    cross_validate, rank, ridge_baseline, sensitivities, structure_comparison, structure_label,
     validation_for,
 )
 from mbus_framework.analysis.crispness.model import CrispnessModel
@@ -144,8 +145,9 @@ def run_crispness(args) -> int:
         res["anova_group"] = one_way_anova(panel, group, args.alpha, str(group))
     if structures:
         Xs, ys = data[inputs].to_numpy(dtype=float), data["score"].to_numpy(dtype=float)
-        if len(ys) > STRUCTURE_SUBSET:  # documented: structures compared on a seeded subset
-            keep = np.sort(np.random.default_rng(args.seed).choice(len(ys), STRUCTURE_SUBSET, replace=False))
+        subset = validation_settings.STRUCTURE_SUBSET  # read at call time (a caller or test may set it)
+        if len(ys) > subset:  # documented: structures compared on a seeded subset
+            keep = np.sort(np.random.default_rng(args.seed).choice(len(ys), subset, replace=False))
             Xs, ys = Xs[keep], ys[keep]
         sub_name, sub_folds = validation_for(len(ys))
         res["structure_validation"] = sub_name + (f" on a random subset of {len(ys)} of {len(data)} samples"
