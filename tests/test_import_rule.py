@@ -10,6 +10,7 @@ Each check runs a real command in a fresh interpreter and reads its ``sys.module
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -38,9 +39,9 @@ print("\\n@@MODULES@@" + json.dumps([status, sorted(sys.modules)]))
 """
 
 
-def _modules(args: list[str], code: str = _PROBE) -> tuple[int, set[str]]:
+def _modules(args: list[str], code: str = _PROBE, env: dict[str, str] | None = None) -> tuple[int, set[str]]:
     done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT,
-                          timeout=300)
+                          timeout=300, env=None if env is None else {**os.environ, **env})
     assert "@@MODULES@@" in done.stdout, done.stderr[-2000:]
     status, names = json.loads(done.stdout.rpartition("@@MODULES@@")[2])
     return status, set(names)
@@ -64,13 +65,19 @@ def test_plugin_list_imports_no_plugin_runtime_dependencies():
     assert _loaded(modules, PLUGIN_LIST) == []
 
 
-def test_single_run_with_plots_imports_only_what_it_uses(tmp_path):
-    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"])
+@pytest.mark.parametrize("helpers", ["1", "0"])
+def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
+    """With the forked figure helpers (Linux) the run's own process never imports matplotlib;
+    drawing in process (``MBUS_FIGURE_WORKERS=0``) goes through the Agg canvas, not pyplot."""
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], env={"MBUS_FIGURE_WORKERS": helpers})
     assert status == 0
     assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
     assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats")) == []
-    assert "matplotlib.figure" in modules  # it did plot, through the Agg canvas ...
-    assert "matplotlib.pyplot" not in modules  # ... without pyplot's global state
+    if helpers == "1" and sys.platform.startswith("linux"):
+        assert _loaded(modules, ("matplotlib",)) == []  # the helpers drew every figure
+    else:
+        assert "matplotlib.figure" in modules  # it did plot, through the Agg canvas ...
+        assert "matplotlib.pyplot" not in modules  # ... without pyplot's global state
 
 
 def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
