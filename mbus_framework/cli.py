@@ -169,6 +169,9 @@ def _main(args: argparse.Namespace) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
+        from mbus_framework.startup import defer_f2py
+
+        defer_f2py()  # before scipy loads (numpy.f2py is about 0.1 s of a run's start-up)
         if _is_campaign_file(args.config):
             from mbus_framework.campaigns.cli import run_from_cli
 

@@ -22,6 +22,8 @@ POTATO = ROOT / "configs" / "potato.yaml"
 
 # Never in a single run: campaigns, Dask, the analyses' libraries.
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
+# Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
+UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer")
 # --help and --version: nothing numerical at all.
 HEAVY = (*NEVER, "scipy.stats", "numpy", "scipy", "matplotlib", "pydantic", "mbus_framework.estimation.problem")
 # --list-plugins imports each plugin module (their classes carry the summaries), but not what a
@@ -72,7 +74,7 @@ def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
     status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], env={"MBUS_FIGURE_WORKERS": helpers})
     assert status == 0
     assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
-    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats")) == []
+    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats", *UNUSED)) == []
     if helpers == "1" and sys.platform.startswith("linux"):
         assert _loaded(modules, ("matplotlib",)) == []  # the helpers drew every figure
     else:
@@ -83,7 +85,24 @@ def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
 def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
     status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--no-plots"])
     assert status == 0 and (tmp_path / "run" / "result.json").is_file()
-    assert _loaded(modules, (*NEVER, "matplotlib")) == []
+    assert _loaded(modules, (*NEVER, "matplotlib", *UNUSED)) == []
+
+
+def test_deferred_f2py_is_the_real_module_when_used():
+    """numpy.f2py, made lazy at start-up (mbus_framework.startup), is not run by scipy's
+    ``from numpy import *`` but works as soon as something uses it."""
+    code = """
+import json, sys
+from mbus_framework.startup import defer_f2py
+deferred = defer_f2py()
+import scipy.linalg, scipy.optimize
+before = "numpy.f2py.crackfortran" in sys.modules
+import numpy.f2py
+from numpy.f2py import crackfortran
+print("\\n@@MODULES@@" + json.dumps([int(not (deferred and callable(numpy.f2py.run_main))), [str(before)]]))
+"""
+    status, flags = _modules([], code)
+    assert status == 0 and flags == {"False"}
 
 
 def test_api_fit_imports_only_what_it_uses(tmp_path):
