@@ -136,10 +136,17 @@ def _special_mode(args, progress) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)  # --help and --version exit here, before any heavy import
+    from mbus_framework.pipeline import figure_workers
     from mbus_framework.pipeline.interrupts import handling
 
-    with handling(), _one_line_warnings():
-        return _main(args)
+    if args.config and not (args.no_plots or args.list_plugins or args.study or args.compare_models
+                            or args.design_excitation):
+        figure_workers.prestart()  # a run that may plot: the figure helper imports matplotlib meanwhile
+    try:
+        with handling(), _one_line_warnings():
+            return _main(args)
+    finally:
+        figure_workers.discard()  # not a plotting run after all (campaign, error, output.plots: false)
 
 
 @contextmanager

@@ -1,8 +1,9 @@
 """A run's figures drawn beside the fit, by two forked helper processes (Linux).
 
 Importing matplotlib and drawing six figures costs about as much CPU as the rest of a run.
-:func:`start` forks a helper as soon as the config says the run will plot; the helper imports
-matplotlib (and loads its fonts) while the parent acquires and fits. :meth:`Helpers.render` sends
+``mbus-run`` forks a helper as it starts (:func:`prestart`; a run from Python forks it in
+:func:`start`, once the config says the run will plot); the helper imports matplotlib (and loads
+its fonts) while the parent imports the rest, reads the config, acquires and fits. :meth:`Helpers.render` sends
 it the :class:`~mbus_framework.pipeline.figures.FitData` (pickled, over a pipe); the helper forks
 once more and the two draw half of the figures each, so on two cores the figures cost about half
 their CPU time in wall time, and the parent never imports matplotlib. Each PNG comes back over a
@@ -113,8 +114,31 @@ class Helpers:
         self.close()
 
 
+#: A helper forked by ``mbus-run`` before its own imports (:func:`prestart`), for the run's :func:`start`.
+_early: list[Helpers] = []
+
+
+def prestart() -> None:
+    """Fork the helper now, at the command line's start: it imports numpy and matplotlib while the
+    run imports scipy and reads its config; the run's :func:`start` takes it. :func:`discard`
+    ends it if no run does."""
+    if not _early:
+        helpers = start()
+        if helpers is not None:
+            _early.append(helpers)
+
+
+def discard() -> None:
+    """End a :func:`prestart` helper that no run took."""
+    while _early:
+        _early.pop().close()
+
+
 def start() -> Helpers | None:
-    """Fork the helper (it starts importing matplotlib at once); None where :func:`available` is false."""
+    """The helper forked by :func:`prestart`, or a new one (it starts importing matplotlib at
+    once); None where :func:`available` is false."""
+    if _early:
+        return _early.pop()
     if not available():
         return None
     data_r, data_w = os.pipe()
@@ -161,9 +185,13 @@ def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...]) ->
 
 
 def _warm() -> None:
-    """Import the Agg canvas and draw one text, so fonts are loaded before the data arrives."""
+    """Import the figures and the Agg canvas and draw one text, so fonts are loaded before the
+    data arrives."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
+    import mbus_framework.pipeline.figures  # noqa: F401 - what the data's classes and the drawing need
+    import mbus_framework.pipeline.html  # noqa: F401
 
     fig = Figure(figsize=(1, 1))
     FigureCanvasAgg(fig)
