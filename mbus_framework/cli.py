@@ -141,7 +141,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if args.config and not (args.no_plots or args.list_plugins or args.study or args.compare_models
                             or args.design_excitation):
-        figure_workers.prestart()  # a run that may plot: the figure helper imports matplotlib meanwhile
+        # a run that may plot: what the run and the figure helper both need is imported once, then
+        # the helper is forked and imports matplotlib while the run goes on
+        from mbus_framework.startup import defer_f2py
+
+        defer_f2py()
+        import mbus_framework.pipeline.figures  # noqa: F401 - numpy, scipy.special, the engine's arrays
+        figure_workers.prestart()
     try:
         with handling(), _one_line_warnings():
             return _main(args)

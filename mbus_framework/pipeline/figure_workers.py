@@ -76,22 +76,24 @@ class Helpers:
 
         names = applicable(d)
         pngs: dict[str, bytes] = {}
+        finished = False
         try:
             _write_all(self.data_fd, pickle.dumps((d, dpi, split(names)), protocol=pickle.HIGHEST_PROTOCOL))
             os.close(self.data_fd)
             self.data_fd = -1
-            pngs = _collect(self.out_fds)
+            pngs, finished = _collect(self.out_fds)
         except OSError:
             pass  # a helper went away: the parent draws what is missing
         finally:
-            self.close()
+            self.close(wait=finished)
         missing = [n for n in names if not isinstance(pngs.get(n), bytes)]
         if missing:
             pngs.update(render_all(d, dpi, missing))
         return {n: pngs[n] for n in names}
 
-    def close(self) -> None:
-        """Close the pipes and end and reap the helper (idempotent)."""
+    def close(self, wait: bool = False) -> None:
+        """Close the pipes and reap the helper: ``wait`` for it when it has sent everything (it
+        only reaps its own fork then), else end it first (idempotent)."""
         for fd in (self.data_fd, *self.out_fds):
             if fd >= 0:
                 try:
@@ -101,7 +103,9 @@ class Helpers:
         self.data_fd, self.out_fds = -1, (-1, -1)
         if self.pid > 0:
             try:
-                if os.waitpid(self.pid, os.WNOHANG) == (0, 0):
+                if wait:  # both pipes closed: it is only reaping its fork
+                    os.waitpid(self.pid, 0)
+                elif os.waitpid(self.pid, os.WNOHANG) == (0, 0):
                     os.kill(self.pid, signal.SIGKILL)
                     os.waitpid(self.pid, 0)
             except (OSError, ChildProcessError):
@@ -226,9 +230,11 @@ def _write_all(fd: int, data: bytes) -> None:
         view = view[os.write(fd, view):]
 
 
-def _collect(fds: tuple[int, int]) -> dict[str, bytes]:
-    """(name, PNG) records from both helpers' pipes until both close or :data:`SILENCE` passes."""
+def _collect(fds: tuple[int, int]) -> tuple[dict[str, bytes], bool]:
+    """(name, PNG) records from both helpers' pipes until both close (finished: True) or
+    :data:`SILENCE` passes (False)."""
     buffers = {fd: bytearray() for fd in fds}
+    finished = False
     with selectors.DefaultSelector() as sel:
         for fd in fds:
             sel.register(fd, selectors.EVENT_READ)
@@ -242,6 +248,7 @@ def _collect(fds: tuple[int, int]) -> dict[str, bytes]:
                     buffers[key.fd] += chunk
                 else:
                     sel.unregister(key.fd)
+        finished = not sel.get_map()
     pngs: dict[str, bytes] = {}
     for buf in buffers.values():
         stream = io.BytesIO(bytes(buf))
@@ -251,4 +258,4 @@ def _collect(fds: tuple[int, int]) -> dict[str, bytes]:
             except Exception:  # noqa: BLE001 - a cut-off record: those figures are drawn here
                 break
             pngs[name] = png
-    return pngs
+    return pngs, finished
