@@ -170,6 +170,7 @@ def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...]) ->
         for fd in closing:
             os.close(fd)
         _warm()
+        gc.freeze()  # what is loaded now lives to the end: collections between figures skip it
         with os.fdopen(data_fd, "rb") as fh:
             blob = fh.read()
         if not blob:  # the run ended without figures
@@ -207,7 +208,8 @@ def _warm() -> None:
 def _draw(d: "FitData", dpi: int, names: list[str], fd: int) -> None:
     """Draw ``names``, writing (name, PNG bytes) to ``fd`` as each is done; a figure that fails
     is left for the parent. The cyclic garbage collector waits while a figure is drawn (matplotlib
-    makes thousands of linked objects: about a tenth of the drawing time) and runs between figures."""
+    makes thousands of linked objects: about a tenth of the drawing time) and runs between figures,
+over the figure's objects only (the helper froze what it had loaded before)."""
     from mbus_framework.pipeline.figures import render_all
 
     with os.fdopen(fd, "wb") as fh:
