@@ -161,3 +161,29 @@ def test_log_axes_are_labelled_without_mathtext():
                   for lab in axis.get_ticklabels(which="both")]
         assert labels and not [lab for lab in labels if "$" in lab], name
         assert any("10" in lab for lab in labels), name
+
+
+@LINUX
+def test_helpers_end_with_a_killed_run(tmp_path):
+    """A run killed outright (SIGKILL: no clean-up code runs) leaves no helper behind: they die with
+    their parent (PR_SET_PDEATHSIG), whether waiting for the data or drawing."""
+    import signal
+    import time
+
+    run = subprocess.Popen([sys.executable, "-c", "import sys; from mbus_framework.cli import main; sys.exit(main())",
+                            str(POTATO), "-o", str(tmp_path / "run"), "-q", *FAST], cwd=ROOT, start_new_session=True,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def group() -> list[str]:
+        found = subprocess.run(["pgrep", "-g", str(run.pid)], capture_output=True, text=True).stdout.split()
+        return [pid for pid in found if pid != str(run.pid)]
+
+    deadline = time.monotonic() + 120  # liveness bound, not a timing claim
+    while not group() and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert run.poll() is None and group(), "the run ended before its helper could be seen"
+    os.kill(run.pid, signal.SIGKILL)
+    run.wait()
+    while group() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert group() == []

@@ -148,6 +148,7 @@ def start() -> Helpers | None:
         return None
     data_r, data_w = os.pipe()
     out = [os.pipe(), os.pipe()]
+    parent = os.getpid()
     try:
         pid = os.fork()
     except OSError:
@@ -155,18 +156,31 @@ def start() -> Helpers | None:
             os.close(fd)
         return None
     if pid == 0:  # the helper: never returns
-        _helper(data_r, (out[0][1], out[1][1]), closing=(data_w, out[0][0], out[1][0]))
+        _helper(data_r, (out[0][1], out[1][1]), closing=(data_w, out[0][0], out[1][0]), parent=parent)
     for fd in (data_r, out[0][1], out[1][1]):
         os.close(fd)
     return Helpers(pid, data_w, (out[0][0], out[1][0]))
 
 
-def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...]) -> None:
+def _die_with_parent(parent: int) -> None:
+    """End this process when ``parent`` ends (Linux ``PR_SET_PDEATHSIG``), even when it is killed."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # it ended before the request
+        os._exit(1)
+
+
+def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...], parent: int) -> None:
     """Body of the forked helper: warm matplotlib, read the data, fork, draw, exit (os._exit)."""
     status = 1
     try:
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, signal.SIG_DFL)  # Ctrl-C or kill ends a helper quietly; the parent cleans up
+        _die_with_parent(parent)
         for fd in closing:
             os.close(fd)
         _warm()
@@ -176,8 +190,10 @@ def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...]) ->
         if not blob:  # the run ended without figures
             os._exit(0)
         d, dpi, (mine, theirs) = pickle.loads(blob)
+        helper = os.getpid()
         pid = os.fork()
         if pid == 0:
+            _die_with_parent(helper)
             os.close(out_fds[0])
             _draw(d, dpi, theirs, out_fds[1])
             os._exit(0)
