@@ -190,7 +190,9 @@ def _main(args: argparse.Namespace) -> int:
         _prestart(args)
         if _is_campaign_file(args.config):
             from mbus_framework.campaigns.cli import run_from_cli
+            from mbus_framework.pipeline import figure_workers
 
+            figure_workers.discard()  # the campaign's fits run (and plot) in Dask's workers
             return run_from_cli(args)
         from mbus_framework.substitution.config import is_substitution_file
 
