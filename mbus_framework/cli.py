@@ -136,10 +136,28 @@ def _special_mode(args, progress) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)  # --help and --version exit here, before any heavy import
+    from mbus_framework.pipeline import figure_workers
     from mbus_framework.pipeline.interrupts import handling
 
-    with handling(), _one_line_warnings():
-        return _main(args)
+    try:
+        with handling(), _one_line_warnings():
+            return _main(args)
+    finally:
+        figure_workers.discard()  # not a plotting run after all (campaign, error, output.plots: false)
+
+
+def _prestart(args: argparse.Namespace) -> None:
+    """For a run that may plot: import once what the run and the figure helper both need, then
+    fork the helper, which imports matplotlib while the run goes on
+    (:mod:`~mbus_framework.pipeline.figure_workers`)."""
+    from mbus_framework.startup import defer_f2py
+
+    defer_f2py()  # before scipy loads (numpy.f2py is about 0.1 s of a run's start-up)
+    if not (args.no_plots or args.study or args.compare_models or args.design_excitation):
+        import mbus_framework.pipeline.figures  # noqa: F401 - numpy, scipy.special, the engine's arrays
+        from mbus_framework.pipeline import figure_workers
+
+        figure_workers.prestart()
 
 
 @contextmanager
@@ -169,9 +187,12 @@ def _main(args: argparse.Namespace) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
+        _prestart(args)
         if _is_campaign_file(args.config):
             from mbus_framework.campaigns.cli import run_from_cli
+            from mbus_framework.pipeline import figure_workers
 
+            figure_workers.discard()  # the campaign's fits run (and plot) in Dask's workers
             return run_from_cli(args)
         from mbus_framework.substitution.config import is_substitution_file
 

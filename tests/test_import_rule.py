@@ -10,6 +10,7 @@ Each check runs a real command in a fresh interpreter and reads its ``sys.module
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +22,8 @@ POTATO = ROOT / "configs" / "potato.yaml"
 
 # Never in a single run: campaigns, Dask, the analyses' libraries.
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
+# Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
+UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer")
 # --help and --version: nothing numerical at all.
 HEAVY = (*NEVER, "scipy.stats", "numpy", "scipy", "matplotlib", "pydantic", "mbus_framework.estimation.problem")
 # --list-plugins imports each plugin module (their classes carry the summaries), but not what a
@@ -38,9 +41,9 @@ print("\\n@@MODULES@@" + json.dumps([status, sorted(sys.modules)]))
 """
 
 
-def _modules(args: list[str], code: str = _PROBE) -> tuple[int, set[str]]:
+def _modules(args: list[str], code: str = _PROBE, env: dict[str, str] | None = None) -> tuple[int, set[str]]:
     done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT,
-                          timeout=300)
+                          timeout=300, env=None if env is None else {**os.environ, **env})
     assert "@@MODULES@@" in done.stdout, done.stderr[-2000:]
     status, names = json.loads(done.stdout.rpartition("@@MODULES@@")[2])
     return status, set(names)
@@ -64,19 +67,42 @@ def test_plugin_list_imports_no_plugin_runtime_dependencies():
     assert _loaded(modules, PLUGIN_LIST) == []
 
 
-def test_single_run_with_plots_imports_only_what_it_uses(tmp_path):
-    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"])
+@pytest.mark.parametrize("helpers", ["1", "0"])
+def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
+    """With the forked figure helpers (Linux) the run's own process never imports matplotlib;
+    drawing in process (``MBUS_FIGURE_WORKERS=0``) goes through the Agg canvas, not pyplot."""
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], env={"MBUS_FIGURE_WORKERS": helpers})
     assert status == 0
     assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
-    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats")) == []
-    assert "matplotlib.figure" in modules  # it did plot, through the Agg canvas ...
-    assert "matplotlib.pyplot" not in modules  # ... without pyplot's global state
+    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats", *UNUSED)) == []
+    if helpers == "1" and sys.platform.startswith("linux"):
+        assert _loaded(modules, ("matplotlib",)) == []  # the helpers drew every figure
+    else:
+        assert "matplotlib.figure" in modules  # it did plot, through the Agg canvas ...
+        assert "matplotlib.pyplot" not in modules  # ... without pyplot's global state
 
 
 def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
     status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--no-plots"])
     assert status == 0 and (tmp_path / "run" / "result.json").is_file()
-    assert _loaded(modules, (*NEVER, "matplotlib")) == []
+    assert _loaded(modules, (*NEVER, "matplotlib", *UNUSED)) == []
+
+
+def test_deferred_f2py_is_the_real_module_when_used():
+    """numpy.f2py, made lazy at start-up (mbus_framework.startup), is not run by scipy's
+    ``from numpy import *`` but works as soon as something uses it."""
+    code = """
+import json, sys
+from mbus_framework.startup import defer_f2py
+deferred = defer_f2py()
+import scipy.linalg, scipy.optimize
+before = "numpy.f2py.crackfortran" in sys.modules
+import numpy.f2py
+from numpy.f2py import crackfortran
+print("\\n@@MODULES@@" + json.dumps([int(not (deferred and callable(numpy.f2py.run_main))), [str(before)]]))
+"""
+    status, flags = _modules([], code)
+    assert status == 0 and flags == {"False"}
 
 
 def test_api_fit_imports_only_what_it_uses(tmp_path):

@@ -13,6 +13,7 @@ own (e.g. one made by ``matplotlib.pyplot.figure()`` in a notebook).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -111,6 +112,41 @@ def _new(fig: "Figure | None", size: tuple[float, float]) -> "Figure":
     fig = Figure(figsize=size)
     FigureCanvasAgg(fig)
     return fig
+
+
+#: Exponent digits as Unicode superscripts (DejaVu Sans has them): "10⁻¹" without mathtext.
+_SUPERSCRIPT = str.maketrans("0123456789-", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b")
+_MATH = re.compile(r"\$\\mathdefault\{(.*)\}\$")
+
+
+def plain_log_label(label: str) -> str:
+    """A log-axis tick label of matplotlib's ``LogFormatterSciNotation`` (``$\\mathdefault{10^{-1}}$``,
+    ``$\\mathdefault{2\\times10^{3}}$``) as plain text (``10⁻¹``, ``2×10³``): the same label,
+    without the mathtext parser (about a fifth of the drawing time of a log axis)."""
+    m = _MATH.fullmatch(label)
+    if not m:
+        return label
+    body = m.group(1).replace("\\times", "\u00d7")
+    return re.sub(r"\^\{([^}]*)\}", lambda g: g.group(1).translate(_SUPERSCRIPT), body)
+
+
+def _plain_log_ticks(*axes: Any) -> None:
+    """Plain-text labels (:func:`plain_log_label`) on the log-scaled axes of ``axes``; ticks,
+    base and which ticks are labelled stay matplotlib's."""
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    class PlainLogFormatter(LogFormatterSciNotation):
+        def __call__(self, x: float, pos: int | None = None) -> str:
+            return plain_log_label(super().__call__(x, pos))
+
+    for ax in axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            for major in (True, False):
+                old = axis.get_major_formatter() if major else axis.get_minor_formatter()
+                if type(old) is LogFormatterSciNotation:
+                    new = PlainLogFormatter(old._base, labelOnlyBase=old.labelOnlyBase,
+                                            minor_thresholds=old.minor_thresholds, linthresh=old._linthresh)
+                    (axis.set_major_formatter if major else axis.set_minor_formatter)(new)
 
 
 def _margins(fig: "Figure", **kw: float) -> None:
@@ -235,6 +271,7 @@ def frequency_response_figure(d: FitData, fig: "Figure | None" = None) -> "Figur
         ax.grid(True, alpha=0.3)
     ax_m.legend(loc="lower left", fontsize=8)
     ax_m.set_title("frequency response: output per input")
+    _plain_log_ticks(ax_m, ax_p)
     _margins(fig, hspace=0.08)
     return fig
 
@@ -263,6 +300,7 @@ def excitation_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     ax.set_ylim(-60, 5)
     ax.legend(loc="lower left", fontsize=8)
     ax.set_title("excitation spectrum")
+    _plain_log_ticks(ax)
     _margins(fig, top=0.91, bottom=0.12)
     return fig
 
@@ -285,6 +323,7 @@ def convergence_figure(d: FitData, fig: "Figure | None" = None) -> "Figure":
     ax1.set_ylabel("parameter / final value [-]")
     ax1.legend(fontsize=8)
     ax2.semilogy(cost, marker=".")
+    _plain_log_ticks(ax2)
     for k in range(1, len(stages)):
         if stages[k] != stages[k - 1]:
             for ax in (ax1, ax2):
@@ -339,13 +378,15 @@ FIGURES = {
 }
 
 
-def render_all(d: FitData, dpi: int = 100) -> dict[str, bytes]:
-    """PNG bytes of every figure that applies (no convergence plot without a trace)."""
+def applicable(d: FitData) -> list[str]:
+    """The figures that apply to ``d``, in :data:`FIGURES` order (no convergence plot without a
+    trace, no dispersion plot without a dispersion section)."""
+    return [name for name in FIGURES
+            if not ((name == "convergence" and not d.trace) or (name == "dispersion" and not d.dispersion))]
+
+
+def render_all(d: FitData, dpi: int = 100, names: list[str] | None = None) -> dict[str, bytes]:
+    """PNG bytes of every figure that applies (or of ``names``)."""
     from mbus_framework.pipeline.html import png_bytes
 
-    out = {}
-    for name, (build, _file, _caption) in FIGURES.items():
-        if (name == "convergence" and not d.trace) or (name == "dispersion" and not d.dispersion):
-            continue
-        out[name] = png_bytes(build(d), dpi)
-    return out
+    return {name: png_bytes(FIGURES[name][0](d), dpi) for name in (applicable(d) if names is None else names)}

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
+    from mbus_framework.pipeline.figure_workers import Helpers
     from mbus_framework.pipeline.figures import FitData
 
 
@@ -93,13 +94,15 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     return "\n".join(lines)
 
 
-def write_figures(run_dir: Path, data: "FitData", dpi: int = 100) -> tuple[dict[str, str], dict[str, bytes]]:
-    """Draw every figure once, write each as a PNG in the run folder; returns the result.json
-    ``files`` entries (``<name>_plot``) and the PNG bytes (for report.html)."""
+def write_figures(run_dir: Path, data: "FitData", dpi: int = 100,
+                  helpers: "Helpers | None" = None) -> tuple[dict[str, str], dict[str, bytes]]:
+    """Draw every figure once (by the forked ``helpers`` when given,
+    :mod:`~mbus_framework.pipeline.figure_workers`), write each as a PNG in the run folder;
+    returns the result.json ``files`` entries (``<name>_plot``) and the PNG bytes (for report.html)."""
     from mbus_framework.pipeline.figures import FIGURES, render_all
     from mbus_framework.pipeline.storage import atomic_write_bytes
 
-    pngs = render_all(data, dpi)
+    pngs = helpers.render(data, dpi) if helpers is not None else render_all(data, dpi)
     files = {}
     for name, png in pngs.items():
         filename = FIGURES[name][1]

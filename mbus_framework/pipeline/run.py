@@ -8,6 +8,7 @@ are the steps without files (the Python API fits arrays with them).
 """
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -21,7 +22,8 @@ from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.excitation import Waveform
 from mbus_framework.estimation.nuisance import NuisanceSettings
 from mbus_framework.interfaces.registry import Registry, default_registry
-from mbus_framework.pipeline import interrupts, limits
+from mbus_framework.pipeline import figure_workers, interrupts, limits
+from mbus_framework.pipeline.figure_workers import Helpers
 from mbus_framework.pipeline.components import Components, build_components
 from mbus_framework.pipeline.figures import FitData
 from mbus_framework.pipeline.reduction import reduce_record
@@ -182,9 +184,10 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     return RunOutcome(None, c, m, fit, result, problem, designed)
 
 
-def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True) -> None:
-    """trace.csv and result.json, then the figures (PNG) and report.html; result.json is written
-    before any figure is drawn, so a plotting failure cannot lose the estimates."""
+def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helpers: Helpers | None = None) -> None:
+    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given) and
+    report.html; result.json is written before any figure is drawn, so a plotting failure cannot
+    lose the estimates."""
     result, fit = outcome.result, outcome.fit
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
@@ -194,7 +197,7 @@ def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True) -> Non
     if plots:
         from mbus_framework.pipeline.report import write_figures
 
-        files, pngs = write_figures(run_dir, outcome.fit_data())
+        files, pngs = write_figures(run_dir, outcome.fit_data(), helpers=helpers)
         result["files"].update(files)
     result["files"]["report"] = REPORT_FILE
     atomic_write_json(run_dir / "result.json", result)
@@ -235,16 +238,20 @@ def execute(
     already holds a run is replaced only with ``overwrite``."""
     c = load_components(config_path, overrides, source, registry)
     designed = designed_waveform(c)
-    folder = RunFolder.create(out_dir, parent=c.config.output.directory, source=c.source, overwrite=overwrite)
-    with folder, limits.plugin_failures(c.registry, c.source):
-        run_dir = folder.path
-        write_config(run_dir, c.config)
-        if measurement is None:
-            measurement = acquire(c, run_dir, designed)
-        else:
-            save_measurement(run_dir, limits.checked_measurement(measurement, c))
-        interrupts.check()
-        outcome = estimate(c, measurement, designed, progress)
-        outcome.run_dir = run_dir
-        write_outputs(run_dir, outcome, plots if plots is not None else c.config.output.plots)
-        return outcome
+    plots = plots if plots is not None else c.config.output.plots
+    # forked now (before the folder's lock is taken), the figure helpers import matplotlib while
+    # this process acquires and fits; closing them ends them if the run stops early
+    with (figure_workers.start() if plots else None) or nullcontext() as helpers:
+        folder = RunFolder.create(out_dir, parent=c.config.output.directory, source=c.source, overwrite=overwrite)
+        with folder, limits.plugin_failures(c.registry, c.source):
+            run_dir = folder.path
+            write_config(run_dir, c.config)
+            if measurement is None:
+                measurement = acquire(c, run_dir, designed)
+            else:
+                save_measurement(run_dir, limits.checked_measurement(measurement, c))
+            interrupts.check()
+            outcome = estimate(c, measurement, designed, progress)
+            outcome.run_dir = run_dir
+            write_outputs(run_dir, outcome, plots, helpers)
+            return outcome

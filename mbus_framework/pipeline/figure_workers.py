@@ -1,0 +1,279 @@
+"""A run's figures drawn beside the fit, by two forked helper processes (Linux).
+
+Importing matplotlib and drawing six figures costs about as much CPU as the rest of a run.
+``mbus-run`` forks a helper as it starts (:func:`prestart`; a run from Python forks it in
+:func:`start`, once the config says the run will plot); the helper imports matplotlib (and loads
+its fonts) while the parent imports the rest, reads the config, acquires and fits. :meth:`Helpers.render` sends
+it the :class:`~mbus_framework.pipeline.figures.FitData` (pickled, over a pipe); the helper forks
+once more and the two draw half of the figures each, so on two cores the figures cost about half
+their CPU time in wall time, and the parent never imports matplotlib. Each PNG comes back over a
+pipe as soon as it is drawn, byte for byte what
+:func:`~mbus_framework.pipeline.figures.render_all` makes in the parent.
+
+Used only where forking is safe: Linux, a process with a single thread (not a notebook kernel, a
+Dask worker or a threaded BLAS), and not switched off with ``MBUS_FIGURE_WORKERS=0``. A helper
+that cannot start, dies, sends something unreadable or stays silent for :data:`SILENCE` seconds
+costs only time: the parent draws the missing figures itself (and a figure that fails to draw
+fails there, as it would without helpers).
+"""
+from __future__ import annotations
+
+import gc
+import io
+import os
+import pickle
+import selectors
+import signal
+import sys
+from typing import TYPE_CHECKING, Sequence
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mbus_framework.pipeline.figures import FitData
+
+#: Environment switch: ``0`` draws every figure in the run's own process.
+ENV = "MBUS_FIGURE_WORKERS"
+#: Seconds without a figure from the helpers after which the parent stops waiting and draws.
+SILENCE = 300.0
+#: Relative CPU cost of drawing each figure (measured; log axes cost most), to split them evenly.
+WEIGHT = {"convergence": 3.0, "frequency_response": 3.0, "excitation": 2.0, "fit": 2.0,
+          "correlation": 1.5, "dispersion": 1.5}
+
+
+def threads() -> int:
+    """Threads of this process as the kernel counts them (Python's and native ones)."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return 0  # unknown: treated as unsafe
+
+
+def available() -> bool:
+    """True where forking is safe and wanted: Linux, one thread, ``MBUS_FIGURE_WORKERS`` not 0."""
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and os.environ.get(ENV, "1") != "0"
+            and threads() == 1)
+
+
+def split(names: Sequence[str]) -> tuple[list[str], list[str]]:
+    """The figures in two groups of about equal cost (heaviest first onto the lighter group)."""
+    groups: tuple[list[str], list[str]] = ([], [])
+    load = [0.0, 0.0]
+    for name in sorted(names, key=lambda n: -WEIGHT.get(n, 2.0)):
+        k = 0 if load[0] <= load[1] else 1
+        groups[k].append(name)
+        load[k] += WEIGHT.get(name, 2.0)
+    return groups
+
+
+class Helpers:
+    """The forked helper (and, once it has the data, its own fork); see the module docstring."""
+
+    def __init__(self, pid: int, data_fd: int, out_fds: tuple[int, int]) -> None:
+        self.pid, self.data_fd, self.out_fds = pid, data_fd, out_fds
+
+    def render(self, d: "FitData", dpi: int = 100) -> dict[str, bytes]:
+        """PNG bytes of every figure that applies, in :data:`~mbus_framework.pipeline.figures.FIGURES` order."""
+        from mbus_framework.pipeline.figures import applicable, render_all
+
+        names = applicable(d)
+        pngs: dict[str, bytes] = {}
+        finished = False
+        try:
+            _write_all(self.data_fd, pickle.dumps((d, dpi, split(names)), protocol=pickle.HIGHEST_PROTOCOL))
+            os.close(self.data_fd)
+            self.data_fd = -1
+            pngs, finished = _collect(self.out_fds)
+        except OSError:
+            pass  # a helper went away: the parent draws what is missing
+        finally:
+            self.close(wait=finished)
+        missing = [n for n in names if not isinstance(pngs.get(n), bytes)]
+        if missing:
+            pngs.update(render_all(d, dpi, missing))
+        return {n: pngs[n] for n in names}
+
+    def close(self, wait: bool = False) -> None:
+        """Close the pipes and reap the helper: ``wait`` for it when it has sent everything (it
+        only reaps its own fork then), else end it first (idempotent)."""
+        for fd in (self.data_fd, *self.out_fds):
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self.data_fd, self.out_fds = -1, (-1, -1)
+        if self.pid > 0:
+            try:
+                if wait:  # both pipes closed: it is only reaping its fork
+                    os.waitpid(self.pid, 0)
+                elif os.waitpid(self.pid, os.WNOHANG) == (0, 0):
+                    os.kill(self.pid, signal.SIGKILL)
+                    os.waitpid(self.pid, 0)
+            except (OSError, ChildProcessError):
+                pass
+            self.pid = 0
+
+    def __enter__(self) -> "Helpers":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+#: A helper forked by ``mbus-run`` before its own imports (:func:`prestart`), for the run's :func:`start`.
+_early: list[Helpers] = []
+
+
+def prestart() -> None:
+    """Fork the helper now, at the command line's start: it imports numpy and matplotlib while the
+    run imports scipy and reads its config; the run's :func:`start` takes it. :func:`discard`
+    ends it if no run does."""
+    if not _early:
+        helpers = start()
+        if helpers is not None:
+            _early.append(helpers)
+
+
+def discard() -> None:
+    """End a :func:`prestart` helper that no run took."""
+    while _early:
+        _early.pop().close()
+
+
+def start() -> Helpers | None:
+    """The helper forked by :func:`prestart`, or a new one (it starts importing matplotlib at
+    once); None where :func:`available` is false."""
+    if _early:
+        return _early.pop()
+    if not available():
+        return None
+    data_r, data_w = os.pipe()
+    out = [os.pipe(), os.pipe()]
+    parent = os.getpid()
+    try:
+        pid = os.fork()
+    except OSError:
+        for fd in (data_r, data_w, *out[0], *out[1]):
+            os.close(fd)
+        return None
+    if pid == 0:  # the helper: never returns
+        _helper(data_r, (out[0][1], out[1][1]), closing=(data_w, out[0][0], out[1][0]), parent=parent)
+    for fd in (data_r, out[0][1], out[1][1]):
+        os.close(fd)
+    return Helpers(pid, data_w, (out[0][0], out[1][0]))
+
+
+def _die_with_parent(parent: int) -> None:
+    """End this process when ``parent`` ends (Linux ``PR_SET_PDEATHSIG``), even when it is killed."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # it ended before the request
+        os._exit(1)
+
+
+def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...], parent: int) -> None:
+    """Body of the forked helper: warm matplotlib, read the data, fork, draw, exit (os._exit)."""
+    status = 1
+    try:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, signal.SIG_DFL)  # Ctrl-C or kill ends a helper quietly; the parent cleans up
+        _die_with_parent(parent)
+        for fd in closing:
+            os.close(fd)
+        _warm()
+        gc.freeze()  # what is loaded now lives to the end: collections between figures skip it
+        with os.fdopen(data_fd, "rb") as fh:
+            blob = fh.read()
+        if not blob:  # the run ended without figures
+            os._exit(0)
+        d, dpi, (mine, theirs) = pickle.loads(blob)
+        helper = os.getpid()
+        pid = os.fork()
+        if pid == 0:
+            _die_with_parent(helper)
+            os.close(out_fds[0])
+            _draw(d, dpi, theirs, out_fds[1])
+            os._exit(0)
+        os.close(out_fds[1])
+        _draw(d, dpi, mine, out_fds[0])
+        os.waitpid(pid, 0)
+        status = 0
+    except BaseException:  # noqa: BLE001 - the parent draws whatever did not arrive
+        pass
+    os._exit(status)
+
+
+def _warm() -> None:
+    """Import the figures and the Agg canvas and save one small PNG with a text, so fonts and
+    the PNG writer are loaded before the data arrives."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    import mbus_framework.pipeline.figures  # noqa: F401 - what the data's classes and the drawing need
+    import mbus_framework.pipeline.html  # noqa: F401
+
+    fig = Figure(figsize=(1, 1))
+    FigureCanvasAgg(fig)
+    fig.text(0.5, 0.5, "0")
+    fig.savefig(io.BytesIO(), format="png", dpi=10)
+
+
+def _draw(d: "FitData", dpi: int, names: list[str], fd: int) -> None:
+    """Draw ``names``, writing (name, PNG bytes) to ``fd`` as each is done; a figure that fails
+    is left for the parent. The cyclic garbage collector waits while a figure is drawn (matplotlib
+    makes thousands of linked objects: about a tenth of the drawing time) and runs between figures,
+over the figure's objects only (the helper froze what it had loaded before)."""
+    from mbus_framework.pipeline.figures import render_all
+
+    with os.fdopen(fd, "wb") as fh:
+        for name in names:
+            gc.disable()
+            try:
+                png = render_all(d, dpi, [name])[name]
+            except Exception:  # noqa: BLE001 - drawn (and raised) again in the parent
+                continue
+            finally:
+                gc.enable()
+                gc.collect()
+            pickle.dump((name, png), fh, protocol=pickle.HIGHEST_PROTOCOL)
+            fh.flush()
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
+def _collect(fds: tuple[int, int]) -> tuple[dict[str, bytes], bool]:
+    """(name, PNG) records from both helpers' pipes until both close (finished: True) or
+    :data:`SILENCE` passes (False)."""
+    buffers = {fd: bytearray() for fd in fds}
+    finished = False
+    with selectors.DefaultSelector() as sel:
+        for fd in fds:
+            sel.register(fd, selectors.EVENT_READ)
+        while sel.get_map():
+            ready = sel.select(SILENCE)
+            if not ready:
+                break  # silent helpers: draw the rest here
+            for key, _ in ready:
+                chunk = os.read(key.fd, 1 << 20)
+                if chunk:
+                    buffers[key.fd] += chunk
+                else:
+                    sel.unregister(key.fd)
+        finished = not sel.get_map()
+    pngs: dict[str, bytes] = {}
+    for buf in buffers.values():
+        stream = io.BytesIO(bytes(buf))
+        while stream.tell() < len(buf):
+            try:
+                name, png = pickle.load(stream)
+            except Exception:  # noqa: BLE001 - a cut-off record: those figures are drawn here
+                break
+            pngs[name] = png
+    return pngs, finished
