@@ -47,6 +47,23 @@ _CLOSE = 1e-7
 PEAK_TOLERANCE = 1e-10
 
 
+_RECENT: list = []  # (model, theta bytes, ss, modal form) of the last few parameter vectors
+
+
+def _system(model: MediumModel, theta: np.ndarray):
+    """(float state space, modal form or None) at ``theta``; the last few are kept, since a
+    local fit evaluates the response, its Jacobian and the record's tail at the same point."""
+    key = theta.tobytes()
+    for entry in _RECENT:
+        if entry[0] is model and entry[1] == key:
+            return entry[2], entry[3]
+    ss = as_float_ss(model.state_space(theta))
+    mf = modal_form(ss)
+    _RECENT.insert(0, (model, key, ss, mf))
+    del _RECENT[4:]
+    return ss, mf
+
+
 def modal_response(mf: ModalForm, s: np.ndarray) -> np.ndarray:
     """Continuous G(s) = D + sum_i r_i / (s - lam_i) from a modal form, any complex s."""
     r = mf.cb * mf.bb
@@ -103,8 +120,7 @@ def response(model: MediumModel, theta, f, dt: float | None = None) -> np.ndarra
     f = np.atleast_1d(np.asarray(f, dtype=float))
     if not getattr(model, "has_state_space", True):
         return _given_response(model, theta, f, dt)
-    ss = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
-    mf = modal_form(ss)
+    ss, mf = _system(model, np.asarray(theta, dtype=float))
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
         return _direct_response(ss, f, dt)
     val, der = _point_values(mf.lam, f, dt)
@@ -225,10 +241,9 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
     f = np.atleast_1d(np.asarray(f, dtype=float))
     if not getattr(model, "has_state_space", True):
         return _given_response(model, theta, f, dt, jacobian=True)
-    ss = as_float_ss(model.state_space(theta))
-    mf = modal_form(ss)
+    ss, mf = _system(model, theta)
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
-        return _direct_jacobian(model, theta, f, dt)
+        return _direct_jacobian(model, theta, f, dt, ss)
     val, der = _point_values(mf.lam, f, dt)
     r = (mf.cb * mf.bb)[None, :]
     terms = val * r
@@ -379,10 +394,9 @@ def tail_basis(model: MediumModel, theta, f, dt: float, n_samples: int) -> np.nd
     # no states: the record's tail is not modelled (the solver drops transient periods)
     if not getattr(model, "has_state_space", True):
         return np.zeros((f.size, 0), dtype=complex)
-    ss = as_float_ss(model.state_space(theta))
+    ss, mf = _system(model, theta)
     w = 2 * np.pi * f * dt
     shift = np.exp(-1j * w * n_samples)[:, None]
-    mf = modal_form(ss)
     if mf is not None and mf.kappa <= MODAL_MAX_CONDITION:
         E = np.exp(np.clip((mf.lam * dt).real, None, 700) + 1j * (mf.lam * dt).imag)
         modal = 1.0 / (1.0 - E[None, :] * np.exp(-1j * w)[:, None])
