@@ -44,7 +44,7 @@ from mbus_framework.engine.hold import hold_response
 #: Relative eigenvalue gap below which a divided difference is replaced by the derivative.
 _CLOSE = 1e-7
 #: Error of a modal-sum line, relative to the response's peak, above which it is solved directly.
-PEAK_TOLERANCE = 1e-10
+PEAK_TOLERANCE = 1e-9
 
 
 _RECENT: list = []  # (model, theta bytes, ss, modal form) of the last few parameter vectors
