@@ -18,9 +18,10 @@ H = cb diag(f(lam)) bb + D, and by the Daleckii-Krein formula the derivative alo
     F_ij = (f(lam_i) - f(lam_j)) / (lam_i - lam_j),   F_ii = f'(lam_i).
 
 dA, dB, dC, dD come from complex-step differentiation of the model's ``state_space``. When
-the eigenvectors are ill conditioned (nearly defective models), or the modal terms cancel to
-round-off at a frequency, response and Jacobian come from a direct solve per frequency with the
-adjoint: x = (sI - A)^-1 B, w^T = C (sI - A)^-1,
+the eigenvectors are ill conditioned (nearly defective models), response and Jacobian come
+from a direct solve per frequency with the adjoint; so do the lines where the modal sum's error
+bound exceeds ``PEAK_TOLERANCE`` of the response's peak (:func:`_cancelling`):
+x = (sI - A)^-1 B, w^T = C (sI - A)^-1,
 
     dH = dC x + w^T dA x + w^T dB + dD,
 
