@@ -148,3 +148,18 @@ def test_direct_jacobian_agrees_with_the_modal_one(dt):
     assert np.max(np.abs(Hd - H)) <= 1e-9 * np.max(np.abs(H))
     for i in range(theta.size):
         assert np.max(np.abs(Jd[:, i] - J[:, i])) <= 1e-7 * np.max(np.abs(J[:, i]))
+
+
+def test_kept_systems_do_not_mix_models_or_points():
+    """The last few (model, theta) systems are kept: two chains at the same parameters, and
+    one chain at two parameter vectors, each give their own response (python-control)."""
+    import control
+
+    f = np.logspace(4, 6.5, 15)
+    a, b = kv(4), kv(7)
+    th = theta_of(a, 2e9, 300.0, 8e8, 200.0)
+    for model, theta in [(a, th), (b, th), (a, th * 1.3), (a, th), (b, th)]:
+        A, B, C, D = (np.asarray(m, float) for m in model.state_space(theta))
+        ref = np.array([complex(control.ss(A, B, C, D)(2j * np.pi * fk)) for fk in f])
+        got = response(model, theta, f)
+        assert np.max(np.abs(got - ref)) <= 1e-8 * np.max(np.abs(ref))

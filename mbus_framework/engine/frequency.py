@@ -18,9 +18,10 @@ H = cb diag(f(lam)) bb + D, and by the Daleckii-Krein formula the derivative alo
     F_ij = (f(lam_i) - f(lam_j)) / (lam_i - lam_j),   F_ii = f'(lam_i).
 
 dA, dB, dC, dD come from complex-step differentiation of the model's ``state_space``. When
-the eigenvectors are ill conditioned (nearly defective models), or the modal terms cancel to
-round-off at a frequency, response and Jacobian come from a direct solve per frequency with the
-adjoint: x = (sI - A)^-1 B, w^T = C (sI - A)^-1,
+the eigenvectors are ill conditioned (nearly defective models), response and Jacobian come
+from a direct solve per frequency with the adjoint; so do the lines where the modal sum's error
+bound exceeds ``PEAK_TOLERANCE`` of the response's peak (:func:`_cancelling`):
+x = (sI - A)^-1 B, w^T = C (sI - A)^-1,
 
     dH = dC x + w^T dA x + w^T dB + dD,
 
@@ -43,6 +44,25 @@ from mbus_framework.engine.hold import hold_response
 
 #: Relative eigenvalue gap below which a divided difference is replaced by the derivative.
 _CLOSE = 1e-7
+#: Error of a modal-sum line, relative to the response's peak, above which it is solved directly.
+PEAK_TOLERANCE = 1e-9
+
+
+_RECENT: list = []  # (model, theta bytes, ss, modal form) of the last few parameter vectors
+
+
+def _system(model: MediumModel, theta: np.ndarray):
+    """(float state space, modal form or None) at ``theta``; the last few are kept, since a
+    local fit evaluates the response, its Jacobian and the record's tail at the same point."""
+    key = theta.tobytes()
+    for entry in _RECENT:
+        if entry[0] is model and entry[1] == key:
+            return entry[2], entry[3]
+    ss = as_float_ss(model.state_space(theta))
+    mf = modal_form(ss)
+    _RECENT.insert(0, (model, key, ss, mf))
+    del _RECENT[4:]
+    return ss, mf
 
 
 def modal_response(mf: ModalForm, s: np.ndarray) -> np.ndarray:
@@ -101,14 +121,14 @@ def response(model: MediumModel, theta, f, dt: float | None = None) -> np.ndarra
     f = np.atleast_1d(np.asarray(f, dtype=float))
     if not getattr(model, "has_state_space", True):
         return _given_response(model, theta, f, dt)
-    ss = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
-    mf = modal_form(ss)
+    ss, mf = _system(model, np.asarray(theta, dtype=float))
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
         return _direct_response(ss, f, dt)
-    val, _ = _point_values(mf.lam, f, dt)
-    terms = val * (mf.cb * mf.bb)[None, :]
+    val, der = _point_values(mf.lam, f, dt)
+    r = (mf.cb * mf.bb)[None, :]
+    terms = val * r
     H = mf.d + terms.sum(axis=1)
-    bad = _cancelling(terms, H)
+    bad = _cancelling(terms, H, der * r, mf.kappa, _balanced_norm(ss, mf))
     if bad.any():  # modal terms cancel to round-off there: solve those frequencies directly
         H[bad] = _direct_response(ss, f[bad], dt)
     return H
@@ -139,13 +159,14 @@ def response_batch(model: MediumModel, thetas, f, dt: float | None = None, block
     bad = np.ones(fs.shape, dtype=bool)
     modal = _modal_batch(systems)
     if modal is not None:
-        ok, lam, cb, bb, d = modal
+        ok, lam, cb, bb, d, kappa, norm = modal
         if ok.any():
-            val = _point_values_batch(lam[ok], fs[ok], dt)
-            terms = val * (cb[ok] * bb[ok])[:, None, :]
+            val, der = _point_values_batch(lam[ok], fs[ok], dt)
+            r = (cb[ok] * bb[ok])[:, None, :]
+            terms = val * r
             Hm = d[ok, None] + terms.sum(axis=2)
             H[ok] = Hm
-            bad[ok] = _cancelling(terms.reshape(-1, n), Hm.ravel()).reshape(Hm.shape)
+            bad[ok] = _cancelling(terms, Hm, der * r, kappa[ok], norm[ok])
     rows = np.flatnonzero(bad.any(axis=1))
     if rows.size == 0:
         return H
@@ -166,7 +187,7 @@ def response_batch(model: MediumModel, thetas, f, dt: float | None = None, block
 
 
 def _modal_batch(systems: list[StateSpace]):
-    """(usable, lam, cb, bb, d) of the balanced eigendecompositions of ``systems`` (as
+    """(usable, lam, cb, bb, d, kappa, ||A||_1) of the balanced eigendecompositions of ``systems`` (as
     :func:`~mbus_framework.engine.simulation.modal_form`, stacked), or None."""
     from scipy.linalg.lapack import dgebal
 
@@ -188,11 +209,12 @@ def _modal_batch(systems: list[StateSpace]):
         forms = [modal_form(s) if u else None for s, u in zip(systems, usable)]
         usable &= np.array([m is not None and m.kappa <= MODAL_MAX_CONDITION for m in forms])
         z = np.zeros((S, n), dtype=complex)
-        lam, cb, bb = z.copy(), z.copy(), z.copy()
+        lam, cb, bb, kappa, norm = z.copy(), z.copy(), z.copy(), np.ones(S), np.zeros(S)
         for k, m in enumerate(forms):
             if usable[k]:
-                lam[k], cb[k], bb[k] = m.lam, m.cb, m.bb
-        return usable, lam, cb, bb, np.array([s.D[0, 0] for s in systems], dtype=float)
+                lam[k], cb[k], bb[k], kappa[k] = m.lam, m.cb, m.bb, m.kappa
+                norm[k] = _balanced_norm(systems[k], m)
+        return usable, lam, cb, bb, np.array([s.D[0, 0] for s in systems], dtype=float), kappa, norm
     lam, V = np.asarray(lam, dtype=complex), np.asarray(V, dtype=complex)
     usable &= np.isfinite(W).all(axis=(1, 2))
     kappa = np.abs(V).sum(axis=1).max(axis=1) * np.abs(W).sum(axis=1).max(axis=1)
@@ -201,14 +223,17 @@ def _modal_batch(systems: list[StateSpace]):
     B = np.array([s.B[:, 0] for s in systems], dtype=float)
     cb = np.einsum("si,sij->sj", C * scale, V)
     bb = np.einsum("sij,sj->si", W, B / scale)
-    return usable, lam, cb, bb, np.array([s.D[0, 0] for s in systems], dtype=float)
+    norm = np.abs(Ab).sum(axis=1).max(axis=1)
+    return usable, lam, cb, bb, np.array([s.D[0, 0] for s in systems], dtype=float), kappa, norm
 
 
-def _point_values_batch(lam: np.ndarray, f: np.ndarray, dt: float | None) -> np.ndarray:
-    """f(lam) per (vector, frequency, mode), shape (S, F, n) (:func:`_point_values` stacked)."""
+def _point_values_batch(lam: np.ndarray, f: np.ndarray, dt: float | None):
+    """f(lam) and f'(lam) per (vector, frequency, mode), shape (S, F, n) (:func:`_point_values` stacked)."""
     if dt is None:
-        return 1.0 / (2j * np.pi * f[:, :, None] - lam[:, None, :])
-    return np.array([_point_values(lk, fk, dt)[0] for lk, fk in zip(lam, f)])
+        val = 1.0 / (2j * np.pi * f[:, :, None] - lam[:, None, :])
+        return val, val**2
+    pairs = [_point_values(lk, fk, dt) for lk, fk in zip(lam, f)]
+    return np.array([v for v, _ in pairs]), np.array([d for _, d in pairs])
 
 
 def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -217,19 +242,21 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
     f = np.atleast_1d(np.asarray(f, dtype=float))
     if not getattr(model, "has_state_space", True):
         return _given_response(model, theta, f, dt, jacobian=True)
-    ss = as_float_ss(model.state_space(theta))
-    mf = modal_form(ss)
+    ss, mf = _system(model, theta)
     if mf is None or mf.kappa > MODAL_MAX_CONDITION:
-        return _direct_jacobian(model, theta, f, dt)
+        return _direct_jacobian(model, theta, f, dt, ss)
     val, der = _point_values(mf.lam, f, dt)
-    terms = val * (mf.cb * mf.bb)[None, :]
+    r = (mf.cb * mf.bb)[None, :]
+    terms = val * r
     H = mf.d + terms.sum(axis=1)
-    if _cancelling(terms, H).any():
-        return _direct_jacobian(model, theta, f, dt)
+    bad = _cancelling(terms, H, der * r, mf.kappa, _balanced_norm(ss, mf))
+    derivatives = [tuple(np.atleast_2d(np.asarray(m, dtype=float)) for m in dss)
+                   for dss in state_space_derivatives(model, theta)]
+    if bad.all():
+        return _direct_jacobian(model, theta, f, dt, ss, derivatives)
     T = mf.scale
     J = np.empty((f.size, theta.size), dtype=complex)
-    for p, dss in enumerate(state_space_derivatives(model, theta)):
-        dA, dB, dC, dD = (np.atleast_2d(np.asarray(m, dtype=float)) for m in dss)
+    for p, (dA, dB, dC, dD) in enumerate(derivatives):
         dcb = (dC[0] * T) @ mf.V
         dbb = mf.W @ (dB[:, 0] / T)
         M = mf.W @ ((dA * T[None, :]) / T[:, None]) @ mf.V
@@ -239,14 +266,39 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
             + _fdk_term(mf.lam, val, der, q, dt)
             + float(dD[0, 0])
         )
+    if bad.any():  # the lines where the modal sum is unsafe: solved directly
+        H[bad], J[bad] = _direct_jacobian(model, theta, f[bad], dt, ss, derivatives)
     return H, J
 
 
-def _cancelling(terms: np.ndarray, H: np.ndarray, limit: float = 1e3) -> np.ndarray:
-    """Frequencies where the modal sum loses more than log10(limit) digits to cancellation:
-    sum |terms| / |H| > limit (a nearly defective model, or a response far below its modes)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.abs(terms).sum(axis=1) > limit * np.abs(H)
+def _cancelling(terms: np.ndarray, H: np.ndarray, slopes=None, kappa=1.0, norm=0.0, limit: float = 1e3,
+                tol: float = PEAK_TOLERANCE) -> np.ndarray:
+    """Lines where the modal sum H_k = sum_i t_ik, t_ik = r_i f(lam_i), is unsafe; shape of ``H``.
+
+    A line is safe when the sum loses at most log10(``limit``) digits of its own value,
+    sum_i |t_ik| <= limit |H_k|, or when its first-order error bound
+
+        e_k = eps kappa (sum_i |t_ik| + ||A|| sum_i |r_i f'(lam_i)|)
+
+    (round-off of the sum, and eigenvalues perturbed by eps kappa ||A||; ``slopes`` the
+    r_i f'(lam_i), ``norm`` ||A|| of the balanced matrix, ``kappa`` the eigenvector condition
+    number) is at most ``tol`` P, P the peak |H_j| of the lines with e_j <= tol |H_j|: a
+    heavily attenuating chain's response decades below its modes comes from the modal sum
+    accurate to ``tol`` of its peak; a nearly defective model (no line accurate) is solved
+    directly. ``terms``, ``slopes`` (..., F, n); ``kappa``, ``norm`` scalars or one per leading index."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        size, mag = np.abs(terms).sum(axis=-1), np.abs(H)
+        k, a = (np.asarray(x, dtype=float)[..., None] for x in (kappa, norm))
+        drift = 0.0 if slopes is None else a * np.abs(slopes).sum(axis=-1)
+        bound = np.finfo(float).eps * k * (size + drift)
+        reliable = (bound <= tol * mag) & np.isfinite(mag)
+        peak = np.max(np.where(reliable, mag, 0.0), axis=-1, keepdims=True)
+        return ~((size <= limit * mag) | (bound <= tol * peak))
+
+
+def _balanced_norm(ss, mf) -> float:
+    """1-norm of the balanced state matrix T^-1 A T of a modal form."""
+    return float(np.abs(ss.A * mf.scale[None, :] / mf.scale[:, None]).sum(axis=0).max())
 
 
 def _solve_points(ss, f: np.ndarray, dt: float | None):
@@ -296,11 +348,16 @@ def _balanced(ss, *derivatives):
     return to(ss), [to(d) for d in derivatives]
 
 
-def _direct_jacobian(model, theta, f, dt) -> tuple[np.ndarray, np.ndarray]:
-    """Exact (H, dH/dtheta) by a direct solve and its adjoint (module docstring)."""
+def _direct_jacobian(model, theta, f, dt, ss=None, derivatives=None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (H, dH/dtheta) by a direct solve and its adjoint (module docstring); ``ss`` and
+    ``derivatives`` (:func:`state_space_derivatives`) when the caller has them."""
     from scipy.linalg import expm_frechet
 
-    ss, derivatives = _balanced(as_float_ss(model.state_space(theta)), *state_space_derivatives(model, theta))
+    if ss is None:
+        ss = as_float_ss(model.state_space(theta))
+    if derivatives is None:
+        derivatives = state_space_derivatives(model, theta)
+    ss, derivatives = _balanced(ss, *derivatives)
     s, A, B = _solve_points(ss, f, dt)
     n = A.shape[0]
     M = _resolvent(s, A)
@@ -338,10 +395,9 @@ def tail_basis(model: MediumModel, theta, f, dt: float, n_samples: int) -> np.nd
     # no states: the record's tail is not modelled (the solver drops transient periods)
     if not getattr(model, "has_state_space", True):
         return np.zeros((f.size, 0), dtype=complex)
-    ss = as_float_ss(model.state_space(theta))
+    ss, mf = _system(model, theta)
     w = 2 * np.pi * f * dt
     shift = np.exp(-1j * w * n_samples)[:, None]
-    mf = modal_form(ss)
     if mf is not None and mf.kappa <= MODAL_MAX_CONDITION:
         E = np.exp(np.clip((mf.lam * dt).real, None, 700) + 1j * (mf.lam * dt).imag)
         modal = 1.0 / (1.0 - E[None, :] * np.exp(-1j * w)[:, None])

@@ -374,8 +374,26 @@ class ModalForm:
         return float(ratio.min())
 
 
+_RECENT_FORMS: list = []  # (key, modal form) of the last few systems
+
+
 def modal_form(ss: StateSpace) -> ModalForm | None:
-    """Balanced eigendecomposition of ``ss`` (float), or None when it cannot be formed."""
+    """Balanced eigendecomposition of ``ss`` (float), or None when it cannot be formed.
+
+    The last few are kept (keyed by the matrices' values): a local fit simulates, and then
+    differentiates, the same system."""
+    arrays = [np.ascontiguousarray(m) for m in ss]
+    key = b"".join(m.tobytes() + f"{m.dtype}{m.shape}".encode() for m in arrays)
+    for k, mf in _RECENT_FORMS:
+        if k == key:
+            return mf
+    mf = _modal_form(ss)
+    _RECENT_FORMS.insert(0, (key, mf))
+    del _RECENT_FORMS[4:]
+    return mf
+
+
+def _modal_form(ss: StateSpace) -> ModalForm | None:
     A, B, C, D = ss
     n = A.shape[0]
     if n == 0 or not np.all(np.isfinite(A)):
