@@ -366,7 +366,8 @@ class _SpectralFit:
     def residual(self, z):
         th, amp = self.unpack(z)
         G, _, base = self._model(th, amp, False)
-        r = G * base - self.spectrum.lines.Y
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflowing trial point is caught below
+            r = G * base - self.spectrum.lines.Y
         if not np.all(np.isfinite(r)):
             return np.full(2 * r.size + self.extra, 1e3 * np.sqrt(self.spectrum.lines.energy / r.size))
         r = np.concatenate([r.real, r.imag])
