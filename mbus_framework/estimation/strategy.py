@@ -374,6 +374,11 @@ def search(
     except SearchTimeout:
         s.report.stopped_by_budget = s.report.stopped_by_budget or clock.verdict(
             sum("end" in e for e in s.report.starts))
+    if not accepted and final is not best:  # the refinement went on to a lower minimum: judge that one
+        v = s.judge(final)
+        if v.accepted:
+            s.report.accepted, s.report.verdict = True, v.as_dict()
+            s.report.accepted_because = f"{v.reason}; reached by refining the best of {len(s.report.starts)} starts"
     for i, rec in enumerate(final.trace):
         rec["iteration"] = i
     s.report.wall_time_s = time.perf_counter() - t0
