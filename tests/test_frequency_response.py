@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from mbus_framework.engine.frequency import response, response_with_jacobian, tail_basis
@@ -30,6 +30,7 @@ materials = st.tuples(
 
 @settings(max_examples=12, deadline=None)
 @given(materials, st.sampled_from([None, 4e-8, 1.6e-7]))
+@example((1e8, 10.0, 1e8, 271072.0, 12), 1.6e-7)  # a ZOH reference with round-off at 1.2e-8 of its peak
 def test_response_matches_python_control(mat, dt):
     import control
 
@@ -46,7 +47,11 @@ def test_response_matches_python_control(mat, dt):
         s = 2j * np.pi * f
     ref = np.array([complex(sys(sk)) for sk in s])
     got = response(model, theta, f, dt)
-    assert np.max(np.abs(got - ref)) <= 1e-8 * np.max(np.abs(ref)) + 1e-300
+    # python-control's ZOH system (c2d through a matrix exponential) carries round-off of up to
+    # about 1e-8 of the peak on soft, long chains (where the true response falls to 1e-47 it
+    # gives 5e-19 against a peak of 5e-11); the continuous reference is exact to round-off
+    tol = 1e-8 if dt is None else 1e-7
+    assert np.max(np.abs(got - ref)) <= tol * np.max(np.abs(ref)) + 1e-300
 
 
 @settings(max_examples=12, deadline=None)
