@@ -6,7 +6,7 @@ the medium's response by G_T G_R (eq. 5.2), this pair is mechanics in series wit
 (Section 6.3: "the transducer materials should add to the elasticity and damping of the
 system"): one heterogeneous chain
 
-    backing | piezo | plates | sample | plates | piezo | backing        (1-D column, area A)
+    backing | piezo | plates | sample | plates | piezo | mount        (1-D column, area A)
 
 with A = pi D^2 / 4 the transducer element's face (D = 25.4 mm for the A301S, Section 3.3.1).
 
@@ -33,9 +33,8 @@ Defaults (from the dissertation's rig, Sections 3.3.1 and 6.2.1, and handbook ma
   path over the element face: rho = 1190 kg/m^3, c = 2750 m/s, delta = 0.016 (attenuation
   about 1.6 dB/cm at 1 MHz, alpha c / (pi f) at 0.5 MHz); 22 elements (t = 1.1 wavelengths).
   Its area outside the column (8 cm square) is not modelled (1-D model of Section 3.2).
-* backing: a dashpot b_B = Z_B A to the stationary casing behind each piezo, Z_B = 10 MRayl
-  (a tungsten-loaded epoxy backing of a broadband transducer; face to face the pair's -6 dB
-  band is then 0.34-0.58 MHz, against the 0.3-0.7 MHz stated for the A301S in Section 5.4).
+* backing: a dashpot b_B = Z_B A to the stationary casing behind the transmitter's piezo,
+  Z_B = 10 MRayl (a tungsten-loaded epoxy backing of a broadband transducer).
 
 Elements shorter than a twentieth of a wavelength at f_0 keep the lumped layers' cut-off
 (2 c n / (2 pi t), 3.2 MHz for the piezo, 3.2 MHz for the plate) well above the band; the
@@ -43,12 +42,16 @@ options reject elements longer than a quarter wavelength.
 
 Transduction
 ------------
-The generator voltage V drives the transmitter's piezo with equal and opposite forces on its
-two faces (thickness mode), F = e33 (A / t_p) V [N] (e33 [C/m^2]): +F on its front face node,
--F on its back node. The receiver's open-circuit voltage follows the mean stress in its piezo,
-V_o = g33 t_p <F> / A [V] (g33 [V m/N]), <F> the mean force over the piezo's element links
-(k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2, g33 = 24.8e-3 V m/N.
-Neither face nor the backing carries a static force, so, like a real pair, it passes no DC.
+As in the sample's own chain, a force enters at one end and the force at the other end is
+read. The generator voltage V drives the transmitter's piezo, whose back face pushes on the
+chain with F = e33 (A / t_p) V [N] (e33 [C/m^2]; the reaction goes into the casing) while its
+backing absorbs what runs backwards (a dashpot b_B = Z_B A from that node to the stationary
+casing). The receiver is mounted statically on the chamber (Section 3.3.1): its piezo's back
+face rests on the rigid mount (the chain's wall), and its open-circuit voltage follows the
+mean stress in the piezo, V_o = g33 t_p <F> / A [V] (g33 [V m/N]), <F> the mean force over the
+piezo's element links (k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2,
+g33 = 24.8e-3 V m/N. With stiff, light layers (and no backing) the record is
+e33 g33 times the sample's own (force in at its first node, force out into a rigid wall).
 
 Everything is one continuous state space (z = [x, x', q], built by
 :func:`mbus_framework.engine.chain.assemble_chain` with the input and output rows above),
@@ -73,8 +76,8 @@ class Layer(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = Field("layer", description="what the layer is (recorded in the metadata)")
     thickness: float = Field(gt=0, le=0.1, description="thickness t [m]")
-    density: float = Field(gt=0, le=3e4, description="density rho [kg/m^3]")
-    sound_speed: float = Field(gt=0, le=2e4, description="longitudinal sound speed c [m/s]")
+    density: float = Field(gt=0, description="density rho [kg/m^3]")
+    sound_speed: float = Field(gt=0, description="longitudinal sound speed c [m/s]")
     loss_factor: float = Field(0.0, ge=0, le=1.0, description="loss factor delta = Im E*/Re E* at the centre frequency")
     n_elements: int = Field(2, ge=1, le=60, description="lumped elements n")
 
@@ -100,7 +103,7 @@ class MechanicalTransducerOptions(BaseModel):
     piezo: Layer = Field(default_factory=_pzt5a, description="the active element (closest to the backing)")
     plates: list[Layer] = Field(default_factory=_acrylic_plate, description="layers between piezo and sample, "
                                 "piezo side first")
-    backing_impedance: float = Field(1.0e7, gt=0, le=1e8, description="backing acoustic impedance Z_B [Pa s/m]")
+    backing_impedance: float = Field(1.0e7, gt=0, le=1e20, description="backing acoustic impedance Z_B [Pa s/m]")
     transmit_constant: float = Field(15.8, gt=0, description="piezo e33 [C/m^2]: F = e33 A / t_p V")
     receive_constant: float = Field(24.8e-3, gt=0, description="piezo g33 [V m/N]: V = g33 t_p <F> / A")
 
@@ -199,7 +202,7 @@ class MechanicalTransducerPair:
 
 
 class TransducedChain:
-    """backing | transmitter | medium chain | receiver | backing as one model-like object
+    """backing | transmitter | medium chain | receiver | mount as one model-like object
     (``state_space(theta)`` of the medium's parameters)."""
 
     def __init__(self, pair: MechanicalTransducerPair, medium):
@@ -222,36 +225,36 @@ class TransducedChain:
         else:
             s_masses, s_normal, s_shear = [], [], []
         # Nodes: transmitter back .. (one per transmitter element), sample nodes, receiver face ..
-        # receiver back; element masses shared half and half between their two nodes. Without a
-        # sample the transmitter's last element ends on the receiver's face node. Normal link j
-        # joins node j and j + 1; the last (the receiver's backing dashpot) ends on the wall.
+        # (one per receiver element); element masses shared half and half between their two
+        # nodes (the receiver's last half element rests on the mount). Without a sample the
+        # transmitter's last element ends on the receiver's face node. Normal link j joins node j
+        # and j + 1; the last (the receiver piezo's back element) ends on the rigid mount.
         nt = len(tx)
-        masses = [0.0] * nt + s_masses + [0.0] * (len(rx) + 1)
+        masses = [0.0] * nt + s_masses + [0.0] * len(rx)
         for e, el in enumerate(tx):  # element e joins node e and node e + 1
             masses[e] += el.mass / 2
             masses[e + 1] += el.mass / 2
         off = nt + len(s_masses)
         for r, el in enumerate(rx):
             masses[off + r] += el.mass / 2
-            masses[off + r + 1] += el.mass / 2
-        normal = [el.link for el in tx] + s_normal + [el.link for el in rx] + [LinkMatrices(b=pair.backing)]
-        shear = [LinkMatrices(b=pair.backing)] + [None] * (nt - 1) + s_shear + [None] * (len(rx) + 1)
+            if off + r + 1 < len(masses):
+                masses[off + r + 1] += el.mass / 2
+        normal = [el.link for el in tx] + s_normal + [el.link for el in rx]
+        shear = [LinkMatrices(b=pair.backing)] + [None] * (nt - 1) + s_shear + [None] * len(rx)
         A, B, C, D = assemble_chain(masses, normal, shear, np.zeros(1))
         A = np.asarray(A, dtype=float)
         nn = len(masses)
-        # Input: +F on the piezo's front node, -F on its back node (F = e33 A / t_p V).
+        # Input: F = e33 A / t_p V on the transmitter's back node.
         B = np.zeros((A.shape[0], 1))
-        front = pair.n_piezo
-        B[nn + 0, 0] = -pair.transmit_gain / masses[0]
-        B[nn + front, 0] = pair.transmit_gain / masses[front]
+        B[nn, 0] = pair.transmit_gain / masses[0]
         # Output: g33 t_p / A times the mean force over the receiver piezo's element links.
         C = np.zeros((1, A.shape[0]))
-        first = off + len(rx) - pair.n_piezo  # link index j joins node j and j + 1 (receiver links from off)
         w = pair.receive_gain / pair.n_piezo
-        for j in range(first, off + len(rx)):
+        for j in range(nn - pair.n_piezo, nn):
             lm = normal[j]
             C[0, j] += w * lm.k
-            C[0, j + 1] -= w * lm.k
             C[0, nn + j] += w * lm.b
-            C[0, nn + j + 1] -= w * lm.b
+            if j + 1 < nn:
+                C[0, j + 1] -= w * lm.k
+                C[0, nn + j + 1] -= w * lm.b
         return StateSpace(A, B, C, np.zeros((1, 1)))
