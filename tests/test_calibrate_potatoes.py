@@ -208,7 +208,7 @@ def test_campaign_run_recovers_the_relation(tmp_path):
 
 @pytest.mark.slow
 def test_uncompensated_fits_through_the_mechanical_pair(tmp_path):
-    """Three slices through the mechanical transducer pair without compensation (about 35 s CPU
+    """Three slices through the mechanical transducer pair without compensation (about 20 s CPU
     each): the transducers' series masses and compliance read as a softer slice (E_sigma well
     below the truth, opposite to Table 6.2) and their losses as more shear coupling (E_tau above
     the truth, the direction of Table 6.2); docs/analysis.md has the whole campaign."""
