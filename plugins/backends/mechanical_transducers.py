@@ -8,7 +8,7 @@ system"): one heterogeneous chain
 
     backing | piezo | plates | sample | plates | piezo | mount        (1-D column, area A)
 
-with A = pi D^2 / 4 the transducer element's face (D = 25.4 mm for the A301S, Section 3.3.1).
+with A = pi D^2 / 4 the transducer element's face (D = 25.4 mm for the A301S, Section 3.4.3).
 
 Layers
 ------
@@ -25,11 +25,11 @@ and shear links (the fitted model's truth); the transmitter's face node is the s
 node (its face plate's half element mass is added there) and the sample's last normal link
 ends on the receiver's face node instead of the rigid receiver wall.
 
-Defaults (from the dissertation's rig, Sections 3.3.1 and 6.2.1, and handbook materials):
+Defaults (from the dissertation's rig, Sections 3.4.3 and 6.2.2, and handbook materials):
 
 * piezo: PZT-5A, rho = 7750 kg/m^3, c = 4350 m/s, a half-wave plate at f_0 = 0.5 MHz
   (t = c / (2 f_0) = 4.35 mm), delta = 1/Q_m = 1/75; 10 elements.
-* plates: the 0.6 cm acrylic (PMMA) holding plate of Sections 3.3.1 and 6.2.1 in the wave
+* plates: the 0.6 cm acrylic (PMMA) holding plate of Sections 3.4.3 and 6.2.2 in the wave
   path over the element face: rho = 1190 kg/m^3, c = 2750 m/s, delta = 0.016 (attenuation
   about 1.6 dB/cm at 1 MHz, alpha c / (pi f) at 0.5 MHz); 22 elements (t = 1.1 wavelengths).
   Its area outside the column (8 cm square) is not modelled (1-D model of Section 3.2).
@@ -46,8 +46,8 @@ As in the sample's own chain, a force enters at one end and the force at the oth
 read. The generator voltage V drives the transmitter's piezo, whose back face pushes on the
 chain with F = e33 (A / t_p) V [N] (e33 [C/m^2]; the reaction goes into the casing) while its
 backing absorbs what runs backwards (a dashpot b_B = Z_B A from that node to the stationary
-casing). The receiver is mounted statically on the chamber (Section 3.3.1): its piezo's back
-face rests on the rigid mount (the chain's wall), and its open-circuit voltage follows the
+casing). One transducer was mounted statically on the chamber (Section 3.4.3); here the
+receiver: its piezo's back face rests on the rigid mount (the chain's wall), and its open-circuit voltage follows the
 mean stress in the piezo, V_o = g33 t_p <F> / A [V] (g33 [V m/N]), <F> the mean force over the
 piezo's element links (k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2,
 g33 = 24.8e-3 V m/N. With stiff, light layers (and no backing) the record is
