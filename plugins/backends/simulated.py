@@ -14,9 +14,11 @@ This is how "noise 10 %" of Table 3.1 is read (DESIGN.md, Section 2).
 
 Optional lab realities (absent options leave the record exactly as above):
 
-* ``transducers``: a virtual transducer pair (:mod:`mbus_plugins.backends.transducers`); u is then
-  the generator voltage and y_medium becomes G_R * medium * G_T * u (eq. 5.1), simulated
-  exactly as one continuous cascade.
+* ``transducers``: a virtual transducer pair; u is then the generator voltage. ``kind: filter``
+  (the default, :mod:`mbus_plugins.backends.transducers`): y_medium becomes G_R * medium * G_T * u
+  (eq. 5.1), simulated exactly as one continuous cascade. ``kind: mechanical``
+  (:mod:`mbus_plugins.backends.mechanical_transducers`): lumped piezo elements, plates and
+  backings in series with the medium's chain at both ends, one heterogeneous chain.
 * ``scope``: 8-bit ADC quantisation of both channels with a vertical range, averaging over
   ``averages`` shots with independent noise, and a trigger delay of both channels. The
   reported ``noise_std`` is then sqrt((sigma^2 + q^2/12) / averages) (q the ADC step; the q^2/12
@@ -33,16 +35,17 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from scipy import fft as sfft
 
 from mbus_framework.interfaces.backend import AcquisitionContext, Backend, Measurement
-from mbus_framework.pipeline.config import validate_options
+from mbus_framework.pipeline.config import format_validation_error, validate_options
 from mbus_framework.pipeline.limits import check_parameters
 from mbus_framework.errors import ConfigError
 from mbus_framework.interfaces.hookspecs import BackendSpec, hookimpl
 from mbus_framework.estimation.nuisance import delayed_prediction
 from mbus_framework.engine.simulation import simulate
+from mbus_plugins.backends.mechanical_transducers import MechanicalTransducerOptions, MechanicalTransducerPair
 from mbus_plugins.backends.transducers import ScopeOptions, TransducerPair, TransducerPairOptions, adc, adc_step
 
 
@@ -84,7 +87,9 @@ class SimulatedOptions(BaseModel):
     hold: Literal["zoh", "foh"] = Field("zoh", description="input hold used to simulate the truth")
     input_gain: float = Field(1.0, gt=0, description="true force per recorded input unit [N/unit]")
     delay: float = Field(0.0, ge=0, description="true trigger offset of the received wave [s]")
-    transducers: TransducerPairOptions | None = Field(None, description="virtual transducer pair (band-pass filters)")
+    transducers: TransducerPairOptions | MechanicalTransducerOptions | None = Field(
+        None, description="virtual transducer pair: band-pass filters (kind: filter, the default) or lumped "
+        "mechanics around the sample (kind: mechanical)")
     scope: ScopeOptions | None = Field(None, description="ADC quantisation, averaging and trigger delay")
     wave: WaveOptions | None = Field(None, description="plane-wave reference medium instead of a model (calibration)")
 
@@ -95,8 +100,26 @@ class SimulatedOptions(BaseModel):
             data = {**data, "truth": {}}
         return data
 
+    @field_validator("transducers", mode="wrap")
+    @classmethod
+    def _transducer_kind(cls, value, handler):
+        """``kind`` picks the pair: filter (the default) or mechanical; errors name the key inside."""
+        if not isinstance(value, dict):
+            return handler(value)
+        kind = value.get("kind", "filter")
+        if kind == "filter":  # a ValidationError raised here keeps its key path under transducers
+            return TransducerPairOptions.model_validate({k: v for k, v in value.items() if k != "kind"})
+        if kind != "mechanical":
+            raise ValueError(f"kind: {kind!r} is not a transducer kind; choose filter or mechanical")
+        try:
+            return MechanicalTransducerOptions.model_validate(value)
+        except ValidationError as exc:  # one line naming the key inside transducers
+            raise ValueError(format_validation_error(exc, MechanicalTransducerOptions).lstrip(": ")) from None
+
     @model_validator(mode="after")
     def _check(self):
+        if isinstance(self.transducers, MechanicalTransducerOptions) and self.wave is not None:
+            raise ValueError("transducers: kind mechanical needs a chain medium, not wave (use kind: filter)")
         if self.wave is not None:
             if self.truth or self.medium is not None:
                 raise ValueError("wave replaces the model medium: leave out truth and medium")
@@ -115,7 +138,11 @@ class SimulatedBackend(Backend):
 
     def __init__(self, options):
         super().__init__(options)
-        self.pair = TransducerPair(options.transducers) if options.transducers is not None else None
+        t = options.transducers
+        if isinstance(t, MechanicalTransducerOptions):
+            self.pair = MechanicalTransducerPair(t)
+        else:
+            self.pair = TransducerPair(t) if t is not None else None
 
     # -- the rig's true linear path (for calibration checks and plots) ---------------------------
     def true_transducer_response(self, f: np.ndarray) -> np.ndarray:
