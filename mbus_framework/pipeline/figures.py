@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import special
 
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.engine.moving import moving_average
@@ -99,8 +99,9 @@ def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np
 
 def confidence_bound(n: int, level: float = LEVEL) -> float:
     """Half-width z / sqrt(N) of the band a white residual's correlations stay inside with
-    probability ``level`` at each lag (z the standard normal quantile)."""
-    return float(special.ndtri(0.5 + level / 2) / np.sqrt(n))
+    probability ``level`` at each lag (z the standard normal quantile; the standard library's,
+    so that the figure helpers need not import scipy.special)."""
+    return float(NormalDist().inv_cdf(0.5 + level / 2) / np.sqrt(n))
 
 
 def _new(fig: "Figure | None", size: tuple[float, float]) -> "Figure":
