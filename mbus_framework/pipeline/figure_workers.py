@@ -6,8 +6,10 @@ Importing matplotlib and drawing six figures costs about as much CPU as the rest
 its fonts) while the parent imports the rest, reads the config, acquires and fits. :meth:`Helpers.render` sends
 it the :class:`~mbus_framework.pipeline.figures.FitData` (pickled, over a pipe); the helper forks
 once more and the two draw half of the figures each, so on two cores the figures cost about half
-their CPU time in wall time, and the parent never imports matplotlib. Each PNG comes back over a
-pipe as soon as it is drawn, byte for byte what
+their CPU time in wall time, and the parent never imports matplotlib. The figures that need no fit
+(:data:`~mbus_framework.pipeline.figures.BEFORE_FIT`: the excitation spectrum) are sent before the
+solver starts (:meth:`Helpers.draw_early`) and drawn while the parent fits. Each PNG comes back
+over a pipe as soon as it is drawn, byte for byte what
 :func:`~mbus_framework.pipeline.figures.render_all` makes in the parent.
 
 Used only where forking is safe: Linux, a process with a single thread (not a notebook kernel, a
@@ -69,27 +71,56 @@ class Helpers:
 
     def __init__(self, pid: int, data_fd: int, out_fds: tuple[int, int]) -> None:
         self.pid, self.data_fd, self.out_fds = pid, data_fd, out_fds
+        self.pending = bytearray()  # messages not yet taken by the helper (the data pipe does not block)
+        self.early: dict[str, int] = {}  # figures sent by draw_early -> their dpi
+
+    def draw_early(self, d: "FitData", dpi: int = 100) -> None:
+        """Send the figures of ``d`` that need no fit (:data:`~mbus_framework.pipeline.figures.BEFORE_FIT`;
+        ``d`` may be :meth:`~mbus_framework.pipeline.figures.FitData.before_fit`): the helper draws
+        them while the run fits; :meth:`render` collects them. Never blocks."""
+        from mbus_framework.pipeline.figures import BEFORE_FIT, applicable
+
+        names = [n for n in applicable(d) if n in BEFORE_FIT and n not in self.early]
+        if names and self.data_fd >= 0:
+            try:
+                self._send(("early", d, dpi, names))
+            except OSError:
+                return  # the helper is gone: render draws everything here
+            self.early.update(dict.fromkeys(names, dpi))
 
     def render(self, d: "FitData", dpi: int = 100) -> dict[str, bytes]:
         """PNG bytes of every figure that applies, in :data:`~mbus_framework.pipeline.figures.FIGURES` order."""
         from mbus_framework.pipeline.figures import applicable, render_all
 
         names = applicable(d)
+        sent = [n for n in names if self.early.get(n) == dpi]  # drawn from the same record, at this dpi
         pngs: dict[str, bytes] = {}
         finished = False
-        try:
-            _write_all(self.data_fd, pickle.dumps((d, dpi, split(names)), protocol=pickle.HIGHEST_PROTOCOL))
-            os.close(self.data_fd)
-            self.data_fd = -1
-            pngs, finished = _collect(self.out_fds)
-        except OSError:
-            pass  # a helper went away: the parent draws what is missing
-        finally:
-            self.close(wait=finished)
+        if self.data_fd >= 0:
+            try:
+                self._send(("final", d, dpi, split([n for n in names if n not in sent])))
+                data_fd, self.data_fd = self.data_fd, -1  # _exchange closes it
+                pngs, finished = _exchange(data_fd, self.pending, self.out_fds)
+            except OSError:
+                pass  # a helper went away: the parent draws what is missing
+        self.close(wait=finished)
         missing = [n for n in names if not isinstance(pngs.get(n), bytes)]
         if missing:
             pngs.update(render_all(d, dpi, missing))
         return {n: pngs[n] for n in names}
+
+    def _send(self, message: tuple) -> None:
+        """Queue ``message`` for the helper and write what the pipe takes now; a helper that is
+        gone ends these helpers (the parent then draws everything)."""
+        self.pending += pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            while self.pending:
+                del self.pending[:os.write(self.data_fd, self.pending)]
+        except BlockingIOError:
+            pass  # the rest goes when the helper reads (render waits for it)
+        except OSError:
+            self.close()
+            raise
 
     def close(self, wait: bool = False) -> None:
         """Close the pipes and reap the helper: ``wait`` for it when it has sent everything (it
@@ -101,6 +132,7 @@ class Helpers:
                 except OSError:
                     pass
         self.data_fd, self.out_fds = -1, (-1, -1)
+        self.pending.clear()
         if self.pid > 0:
             try:
                 if wait:  # both pipes closed: it is only reaping its fork
@@ -159,6 +191,7 @@ def start() -> Helpers | None:
         _helper(data_r, (out[0][1], out[1][1]), closing=(data_w, out[0][0], out[1][0]), parent=parent)
     for fd in (data_r, out[0][1], out[1][1]):
         os.close(fd)
+    os.set_blocking(data_w, False)  # Helpers._send never waits for the helper
     return Helpers(pid, data_w, (out[0][0], out[1][0]))
 
 
@@ -175,7 +208,9 @@ def _die_with_parent(parent: int) -> None:
 
 
 def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...], parent: int) -> None:
-    """Body of the forked helper: warm matplotlib, read the data, fork, draw, exit (os._exit)."""
+    """Body of the forked helper: warm matplotlib, then read messages: draw an ``early`` one's
+    figures at once; at the ``final`` one fork, the two draw a half each, and exit (os._exit).
+    The end of the data before a final message (the run ended without figures) ends it too."""
     status = 1
     try:
         for s in (signal.SIGINT, signal.SIGTERM):
@@ -185,20 +220,27 @@ def _helper(data_fd: int, out_fds: tuple[int, int], closing: tuple[int, ...], pa
             os.close(fd)
         _warm()
         gc.freeze()  # what is loaded now lives to the end: collections between figures skip it
-        with os.fdopen(data_fd, "rb") as fh:
-            blob = fh.read()
-        if not blob:  # the run ended without figures
-            os._exit(0)
-        d, dpi, (mine, theirs) = pickle.loads(blob)
-        helper = os.getpid()
-        pid = os.fork()
-        if pid == 0:
-            _die_with_parent(helper)
-            os.close(out_fds[0])
-            _draw(d, dpi, theirs, out_fds[1])
-            os._exit(0)
-        os.close(out_fds[1])
-        _draw(d, dpi, mine, out_fds[0])
+        with os.fdopen(data_fd, "rb") as data, os.fdopen(out_fds[0], "wb") as out:
+            while True:
+                try:
+                    kind, d, dpi, names = pickle.load(data)
+                except EOFError:  # no (more) figures wanted
+                    os._exit(0)
+                if kind == "early":
+                    _draw(d, dpi, names, out)
+                    continue
+                mine, theirs = names
+                helper = os.getpid()
+                pid = os.fork()
+                if pid == 0:
+                    _die_with_parent(helper)
+                    os.close(out_fds[0])
+                    with os.fdopen(out_fds[1], "wb") as theirs_out:
+                        _draw(d, dpi, theirs, theirs_out)
+                    os._exit(0)
+                os.close(out_fds[1])
+                _draw(d, dpi, mine, out)
+                break
         os.waitpid(pid, 0)
         status = 0
     except BaseException:  # noqa: BLE001 - the parent draws whatever did not arrive
@@ -221,52 +263,61 @@ def _warm() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=10)
 
 
-def _draw(d: "FitData", dpi: int, names: list[str], fd: int) -> None:
-    """Draw ``names``, writing (name, PNG bytes) to ``fd`` as each is done; a figure that fails
+def _draw(d: "FitData", dpi: int, names: list[str], out: "io.BufferedWriter") -> None:
+    """Draw ``names``, writing (name, PNG bytes) to ``out`` as each is done; a figure that fails
     is left for the parent. The cyclic garbage collector waits while a figure is drawn (matplotlib
     makes thousands of linked objects: about a tenth of the drawing time) and runs between figures,
 over the figure's objects only (the helper froze what it had loaded before)."""
     from mbus_framework.pipeline.figures import render_all
 
-    with os.fdopen(fd, "wb") as fh:
-        for name in names:
-            gc.disable()
-            try:
-                png = render_all(d, dpi, [name])[name]
-            except Exception:  # noqa: BLE001 - drawn (and raised) again in the parent
-                continue
-            finally:
-                gc.enable()
-                gc.collect()
-            pickle.dump((name, png), fh, protocol=pickle.HIGHEST_PROTOCOL)
-            fh.flush()
+    for name in names:
+        gc.disable()
+        try:
+            png = render_all(d, dpi, [name])[name]
+        except Exception:  # noqa: BLE001 - drawn (and raised) again in the parent
+            continue
+        finally:
+            gc.enable()
+            gc.collect()
+        pickle.dump((name, png), out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
 
 
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-
-
-def _collect(fds: tuple[int, int]) -> tuple[dict[str, bytes], bool]:
-    """(name, PNG) records from both helpers' pipes until both close (finished: True) or
-    :data:`SILENCE` passes (False)."""
+def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int]) -> tuple[dict[str, bytes], bool]:
+    """Write ``pending`` to the helper (then close ``data_fd``) while reading (name, PNG) records
+    from both helpers' pipes, until both close (finished: True) or :data:`SILENCE` passes (False).
+    Both at once: a helper that is sending an early figure reads the rest of the data only after."""
     buffers = {fd: bytearray() for fd in fds}
-    finished = False
-    with selectors.DefaultSelector() as sel:
-        for fd in fds:
-            sel.register(fd, selectors.EVENT_READ)
-        while sel.get_map():
-            ready = sel.select(SILENCE)
-            if not ready:
-                break  # silent helpers: draw the rest here
-            for key, _ in ready:
-                chunk = os.read(key.fd, 1 << 20)
-                if chunk:
-                    buffers[key.fd] += chunk
-                else:
-                    sel.unregister(key.fd)
-        finished = not sel.get_map()
+    try:
+        with selectors.DefaultSelector() as sel:
+            for fd in fds:
+                sel.register(fd, selectors.EVENT_READ)
+            if pending:
+                sel.register(data_fd, selectors.EVENT_WRITE)
+            while any(fd in sel.get_map() for fd in fds):
+                ready = sel.select(SILENCE)
+                if not ready:
+                    break  # silent helpers: draw the rest here
+                for key, _ in ready:
+                    if key.fd == data_fd:
+                        try:
+                            del pending[:os.write(data_fd, pending)]
+                        except BlockingIOError:
+                            continue
+                        if not pending:  # all sent: the helper may read to the end of the data
+                            sel.unregister(data_fd)
+                            os.close(data_fd)
+                            data_fd = -1
+                        continue
+                    chunk = os.read(key.fd, 1 << 20)
+                    if chunk:
+                        buffers[key.fd] += chunk
+                    else:
+                        sel.unregister(key.fd)
+            finished = not sel.get_map()
+    finally:
+        if data_fd >= 0:
+            os.close(data_fd)
     pngs: dict[str, bytes] = {}
     for buf in buffers.values():
         stream = io.BytesIO(bytes(buf))

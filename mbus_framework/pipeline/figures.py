@@ -75,6 +75,12 @@ class FitData:
         return float(self.t[1] - self.t[0])
 
     @classmethod
+    def before_fit(cls, problem: "FitProblem", designed: Waveform | None = None) -> "FitData":
+        """The record alone, before the solver runs: the prediction is not known yet (NaN), so
+        only the :data:`BEFORE_FIT` figures can be drawn from it (the same as after the fit)."""
+        return cls(problem.t, problem.u, problem.y, np.full_like(problem.y, np.nan, dtype=float), designed=designed)
+
+    @classmethod
     def from_fit(cls, problem: "FitProblem", fit: "FitResult", designed: Waveform | None = None,
                  title: str = "", dispersion: dict[str, Any] | None = None,
                  units: dict[str, Any] | None = None) -> "FitData":
@@ -377,6 +383,11 @@ FIGURES = {
     "dispersion": (dispersion_figure, "dispersion.png",
                    "Phase velocity and attenuation of the fitted material over the record's band."),
 }
+
+
+#: Figures drawn from the fitted record and the design alone (t, u, designed): the same before the
+#: fit as after it (the figure helpers draw them while the run fits).
+BEFORE_FIT = ("excitation",)
 
 
 def applicable(d: FitData) -> list[str]:
