@@ -134,6 +134,10 @@ def test_split_balances_the_figures():
     assert sorted(a + b) == sorted(names) and not set(a) & set(b)
     cost = [sum(figure_workers.WEIGHT[n] for n in g) for g in (a, b)]
     assert abs(cost[0] - cost[1]) <= max(figure_workers.WEIGHT.values())
+    assert cost[0] >= cost[1]  # the helper draws the costlier group, its fork the other
+    rest = [n for n in names if n != "excitation"]  # what is left once the early figure is drawn
+    a, b = figure_workers.split(rest)
+    assert sum(figure_workers.WEIGHT[n] for n in a) >= sum(figure_workers.WEIGHT[n] for n in b)
     assert figure_workers.split(["fit"]) == (["fit"], [])
 
 

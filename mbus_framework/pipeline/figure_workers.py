@@ -56,14 +56,16 @@ def available() -> bool:
 
 
 def split(names: Sequence[str]) -> tuple[list[str], list[str]]:
-    """The figures in two groups of about equal cost (heaviest first onto the lighter group)."""
+    """The figures in two groups of about equal cost (heaviest first onto the lighter group), the
+    costlier group first: the helper draws it, its fork (which first pays for copying the
+    helper's memory pages it touches) the other."""
     groups: tuple[list[str], list[str]] = ([], [])
     load = [0.0, 0.0]
     for name in sorted(names, key=lambda n: -WEIGHT.get(n, 2.0)):
         k = 0 if load[0] <= load[1] else 1
         groups[k].append(name)
         load[k] += WEIGHT.get(name, 2.0)
-    return groups
+    return groups if load[0] >= load[1] else (groups[1], groups[0])
 
 
 class Helpers:
