@@ -52,6 +52,8 @@ SABOTAGE = {
     "dies": "fw._draw = lambda d, dpi, names, out: os._exit(3)",
     # the helpers send bytes that are no record at all
     "garbage": "fw._draw = lambda d, dpi, names, out: (out.write(b'not a pickle' * 1000), out.flush())",
+    # a whole record that is no (name, PNG) pickle
+    "bad_record": "fw._draw = lambda d, dpi, names, out: (out.write(fw.FRAME.pack(12000) + b'not a pickle' * 1000), out.flush())",
     # one figure fails to draw in the helpers (only there): it is drawn in the parent instead
     "one_fails": ("import mbus_framework.pipeline.figures as F\n"
                   "b, f, c = F.FIGURES['fit']\n"
@@ -105,7 +107,7 @@ def test_helpers_draw_the_same_bytes(serial, tmp_path):
 
 
 @LINUX
-@pytest.mark.parametrize("sabotage", ["dies", "garbage", "one_fails", "early_fails"])
+@pytest.mark.parametrize("sabotage", ["dies", "garbage", "bad_record", "one_fails", "early_fails"])
 def test_a_failing_helper_costs_only_time(serial, tmp_path, sabotage):
     status, started, imported, _early = _run(tmp_path / "run", sabotage)
     assert status == 0 and started and all(started)
@@ -229,3 +231,22 @@ def test_figures_before_the_fit_need_no_prediction():
     assert np.isnan(before.yhat).all()
     assert set(BEFORE_FIT) <= set(applicable(before))
     assert render_all(before, 60, list(BEFORE_FIT)) == render_all(after, 60, list(BEFORE_FIT))
+
+
+def test_records_are_passed_on_as_soon_as_they_are_whole():
+    """The parent saves each PNG as its record completes, whatever the pipe's chunking; an
+    unreadable record stops the reading of that pipe."""
+    import pickle
+
+    records = [("fit", b"\x89PNG-1" * 50), ("correlation", b"\x89PNG-2" * 70)]
+    stream = b"".join(figure_workers.FRAME.pack(len(b)) + b
+                      for b in (pickle.dumps(r) for r in records))
+    got: list[tuple[str, bytes]] = []
+    buf = bytearray()
+    for i in range(0, len(stream), 37):  # arbitrary chunks
+        buf += stream[i:i + 37]
+        assert figure_workers._records(buf, lambda name, png: got.append((name, png)))
+    assert got == records and not buf
+    bad = bytearray(figure_workers.FRAME.pack(5) + b"junk!")
+    assert not figure_workers._records(bad, lambda name, png: got.append((name, png)))
+    assert got == records

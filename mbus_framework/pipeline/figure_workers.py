@@ -27,7 +27,8 @@ import pickle
 import selectors
 import signal
 import sys
-from typing import TYPE_CHECKING, Sequence
+import struct
+from typing import TYPE_CHECKING, Callable, Sequence
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.pipeline.figures import FitData
@@ -75,6 +76,7 @@ class Helpers:
         self.pid, self.data_fd, self.out_fds = pid, data_fd, out_fds
         self.pending = bytearray()  # messages not yet taken by the helper (the data pipe does not block)
         self.early: dict[str, int] = {}  # figures sent by draw_early -> their dpi
+        self.submitted: tuple["FitData", int] | None = None  # the data and dpi sent by submit
 
     def draw_early(self, d: "FitData", dpi: int = 100) -> None:
         """Send the figures of ``d`` that need no fit (:data:`~mbus_framework.pipeline.figures.BEFORE_FIT`;
@@ -90,25 +92,48 @@ class Helpers:
                 return  # the helper is gone: render draws everything here
             self.early.update(dict.fromkeys(names, dpi))
 
-    def render(self, d: "FitData", dpi: int = 100) -> dict[str, bytes]:
-        """PNG bytes of every figure that applies, in :data:`~mbus_framework.pipeline.figures.FIGURES` order."""
+    def submit(self, d: "FitData", dpi: int = 100) -> None:
+        """Send the data of the figures not drawn early: the helpers start drawing while the run
+        writes its results; :meth:`render` (with the same ``d``) collects. Never blocks."""
+        from mbus_framework.pipeline.figures import applicable
+
+        names = [n for n in applicable(d) if self.early.get(n) != dpi]  # early ones: same record, same dpi
+        self.submitted = (d, dpi)
+        if self.data_fd >= 0:
+            try:
+                self._send(("final", d, dpi, split(names)))
+            except OSError:
+                pass  # the helper is gone: render draws everything here
+
+    def render(self, d: "FitData", dpi: int = 100,
+               deliver: Callable[[str, bytes], None] | None = None) -> dict[str, bytes]:
+        """PNG bytes of every figure that applies, in :data:`~mbus_framework.pipeline.figures.FIGURES`
+        order; ``deliver(name, png)`` is called for each as it arrives (the run saves it while the
+        others are drawn)."""
         from mbus_framework.pipeline.figures import applicable, render_all
 
         names = applicable(d)
-        sent = [n for n in names if self.early.get(n) == dpi]  # drawn from the same record, at this dpi
+        if self.submitted is None or self.submitted[0] is not d or self.submitted[1] != dpi:
+            self.submit(d, dpi)
         pngs: dict[str, bytes] = {}
+
+        def arrived(name: str, png: bytes) -> None:
+            if name in names and name not in pngs:
+                if deliver is not None:
+                    deliver(name, png)  # if it fails, the figure counts as missing (and fails again below)
+                pngs[name] = png
+
         finished = False
         if self.data_fd >= 0:
             try:
-                self._send(("final", d, dpi, split([n for n in names if n not in sent])))
                 data_fd, self.data_fd = self.data_fd, -1  # _exchange closes it
-                pngs, finished = _exchange(data_fd, self.pending, self.out_fds)
+                finished = _exchange(data_fd, self.pending, self.out_fds, arrived)
             except OSError:
                 pass  # a helper went away: the parent draws what is missing
         self.close(wait=finished)
-        missing = [n for n in names if not isinstance(pngs.get(n), bytes)]
-        if missing:
-            pngs.update(render_all(d, dpi, missing))
+        for name in names:
+            if name not in pngs:
+                arrived(name, render_all(d, dpi, [name])[name])
         return {n: pngs[n] for n in names}
 
     def _send(self, message: tuple) -> None:
@@ -265,8 +290,12 @@ def _warm() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=10)
 
 
+#: A record on a helper's pipe: its length (8 bytes, little-endian), then the pickled (name, PNG bytes).
+FRAME = struct.Struct("<Q")
+
+
 def _draw(d: "FitData", dpi: int, names: list[str], out: "io.BufferedWriter") -> None:
-    """Draw ``names``, writing (name, PNG bytes) to ``out`` as each is done; a figure that fails
+    """Draw ``names``, writing a (name, PNG bytes) record (:data:`FRAME`) to ``out`` as each is done; a figure that fails
     is left for the parent. The cyclic garbage collector waits while a figure is drawn (matplotlib
     makes thousands of linked objects: about a tenth of the drawing time) and runs between figures,
 over the figure's objects only (the helper froze what it had loaded before)."""
@@ -281,14 +310,18 @@ over the figure's objects only (the helper froze what it had loaded before)."""
         finally:
             gc.enable()
             gc.collect()
-        pickle.dump((name, png), out, protocol=pickle.HIGHEST_PROTOCOL)
+        record = pickle.dumps((name, png), protocol=pickle.HIGHEST_PROTOCOL)
+        out.write(FRAME.pack(len(record)) + record)
         out.flush()
 
 
-def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int]) -> tuple[dict[str, bytes], bool]:
-    """Write ``pending`` to the helper (then close ``data_fd``) while reading (name, PNG) records
-    from both helpers' pipes, until both close (finished: True) or :data:`SILENCE` passes (False).
-    Both at once: a helper that is sending an early figure reads the rest of the data only after."""
+def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int],
+              arrived: Callable[[str, bytes], None]) -> bool:
+    """Write ``pending`` to the helper (then close ``data_fd``) while reading both helpers' pipes,
+    passing each whole (name, PNG) record to ``arrived`` as it comes, until both pipes close
+    (True) or :data:`SILENCE` passes (False). Both at once: a helper that is still sending an
+    early figure reads the rest of the data only after. A record that cannot be read ends the
+    reading of that pipe (those figures are drawn by the parent)."""
     buffers = {fd: bytearray() for fd in fds}
     try:
         with selectors.DefaultSelector() as sel:
@@ -299,7 +332,7 @@ def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int]) -> tuple[d
             while any(fd in sel.get_map() for fd in fds):
                 ready = sel.select(SILENCE)
                 if not ready:
-                    break  # silent helpers: draw the rest here
+                    return False  # silent helpers: the parent draws the rest
                 for key, _ in ready:
                     if key.fd == data_fd:
                         try:
@@ -312,21 +345,32 @@ def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int]) -> tuple[d
                             data_fd = -1
                         continue
                     chunk = os.read(key.fd, 1 << 20)
-                    if chunk:
-                        buffers[key.fd] += chunk
-                    else:
+                    if not chunk:
                         sel.unregister(key.fd)
-            finished = not sel.get_map()
+                        continue
+                    buf = buffers[key.fd]
+                    buf += chunk
+                    if not _records(buf, arrived):
+                        sel.unregister(key.fd)  # unreadable: ignore the rest of this pipe
+            return not sel.get_map()
     finally:
         if data_fd >= 0:
             os.close(data_fd)
-    pngs: dict[str, bytes] = {}
-    for buf in buffers.values():
-        stream = io.BytesIO(bytes(buf))
-        while stream.tell() < len(buf):
-            try:
-                name, png = pickle.load(stream)
-            except Exception:  # noqa: BLE001 - a cut-off record: those figures are drawn here
-                break
-            pngs[name] = png
-    return pngs, finished
+
+
+def _records(buf: bytearray, arrived: Callable[[str, bytes], None]) -> bool:
+    """Pass the whole records at the start of ``buf`` to ``arrived`` and remove them; False when
+    one is not a (name, PNG bytes) record."""
+    while len(buf) >= FRAME.size:
+        (size,) = FRAME.unpack_from(buf)
+        if len(buf) < FRAME.size + size:
+            return True  # the rest of this record has not come yet
+        try:
+            name, png = pickle.loads(bytes(buf[FRAME.size:FRAME.size + size]))
+        except Exception:  # noqa: BLE001 - garbage on the pipe
+            return False
+        if not (isinstance(name, str) and isinstance(png, bytes)):
+            return False
+        del buf[:FRAME.size + size]
+        arrived(name, png)
+    return True

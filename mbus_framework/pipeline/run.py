@@ -190,19 +190,22 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
 
 
 def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helpers: Helpers | None = None) -> None:
-    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given) and
-    report.html; result.json is written before any figure is drawn, so a plotting failure cannot
-    lose the estimates."""
+    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given, which
+    get the data first and draw while this process writes) and report.html; result.json is
+    written before any figure is drawn here, so a plotting failure cannot lose the estimates."""
     result, fit = outcome.result, outcome.fit
+    data = outcome.fit_data() if plots else None
+    if data is not None and helpers is not None:
+        helpers.submit(data)
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
         result["files"]["trace"] = "trace.csv"
     atomic_write_json(run_dir / "result.json", result)
     pngs = None
-    if plots:
+    if data is not None:
         from mbus_framework.pipeline.report import write_figures
 
-        files, pngs = write_figures(run_dir, outcome.fit_data(), helpers=helpers)
+        files, pngs = write_figures(run_dir, data, helpers=helpers)
         result["files"].update(files)
     result["files"]["report"] = REPORT_FILE
     atomic_write_json(run_dir / "result.json", result)
