@@ -37,9 +37,10 @@ if TYPE_CHECKING:  # pragma: no cover
 ENV = "MBUS_FIGURE_WORKERS"
 #: Seconds without a figure from the helpers after which the parent stops waiting and draws.
 SILENCE = 300.0
-#: Relative CPU cost of drawing each figure (measured; log axes cost most), to split them evenly.
-WEIGHT = {"convergence": 3.0, "frequency_response": 3.0, "excitation": 2.0, "fit": 2.0,
-          "correlation": 1.5, "dispersion": 1.5}
+#: Relative CPU cost of drawing each figure, to split them evenly (CPU ms per figure of the potato
+#: run, measured in a warm helper: log axes and many ticks cost most).
+WEIGHT = {"frequency_response": 210.0, "convergence": 205.0, "fit": 165.0, "excitation": 150.0,
+          "correlation": 140.0, "dispersion": 130.0}
 
 
 def threads() -> int:
@@ -57,15 +58,20 @@ def available() -> bool:
 
 
 def split(names: Sequence[str]) -> tuple[list[str], list[str]]:
-    """The figures in two groups of about equal cost (heaviest first onto the lighter group), the
-    costlier group first: the helper draws it, its fork (which first pays for copying the
-    helper's memory pages it touches) the other."""
-    groups: tuple[list[str], list[str]] = ([], [])
-    load = [0.0, 0.0]
-    for name in sorted(names, key=lambda n: -WEIGHT.get(n, 2.0)):
-        k = 0 if load[0] <= load[1] else 1
-        groups[k].append(name)
-        load[k] += WEIGHT.get(name, 2.0)
+    """The figures in the two groups whose costlier one costs least (every partition is tried:
+    there are at most a handful of figures), the costlier group first: the helper draws it, its
+    fork (which first pays for copying the helper's memory pages it touches) the other."""
+    names = list(names)
+    cost = [WEIGHT.get(n, 150.0) for n in names]
+    total = sum(cost)
+
+    def heavier(mask: int) -> float:
+        part = sum(c for i, c in enumerate(cost) if mask >> i & 1)
+        return max(part, total - part)
+
+    best = min(range(1 << len(names)), key=heavier)  # the first of equals: deterministic
+    groups = ([n for i, n in enumerate(names) if best >> i & 1], [n for i, n in enumerate(names) if not best >> i & 1])
+    load = [sum(WEIGHT.get(n, 150.0) for n in g) for g in groups]
     return groups if load[0] >= load[1] else (groups[1], groups[0])
 
 
