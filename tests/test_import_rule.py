@@ -140,10 +140,10 @@ def test_campaign_files_are_still_recognised(tmp_path):
 
 def test_the_figure_helpers_need_no_scipy():
     """The figure helper is forked right after numpy loads and imports only what drawing needs:
-    the figures module (and report.html's helpers) load no scipy and not the simulation engine."""
+    the figures module (and report.html's helpers) load no scipy, no pydantic and not the simulation engine."""
     code = ("import json, sys\n"
             "import mbus_framework.pipeline.figures, mbus_framework.pipeline.html\n"
             "print('\\n@@MODULES@@' + json.dumps([0, sorted(sys.modules)]))\n")
     status, modules = _modules([], code=code)
     assert status == 0 and "mbus_framework.pipeline.figures" in modules
-    assert _loaded(modules, ("scipy", "mbus_framework.engine.simulation", "matplotlib.pyplot")) == []
+    assert _loaded(modules, ("scipy", "pydantic", "mbus_framework.engine.simulation", "matplotlib.pyplot")) == []

@@ -22,7 +22,7 @@ import numpy as np
 
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.engine.moving import moving_average
-from mbus_framework.interfaces.excitation import Waveform, power_spectrum
+from mbus_framework.interfaces.waveform import Waveform, power_spectrum
 from mbus_framework.pipeline.recorded_input import welch_spectrum
 from mbus_framework.pipeline.units import UNKNOWN, label_axis
 
