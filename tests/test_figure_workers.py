@@ -61,6 +61,9 @@ SABOTAGE = {
                   "    if os.getpid() != _p: raise RuntimeError('helper only')\n"
                   "    return b(d, fig)\n"
                   "F.FIGURES['fit'] = (broken, f, c)"),
+    # the figure drawn before the fit is drawn at another resolution than the run asks for later
+    "early_other_dpi": ("_early_at = fw.Helpers.draw_early\n"
+                        "fw.Helpers.draw_early = lambda self, d, dpi=100: _early_at(self, d, 50)"),
     # the figure drawn before the fit fails in the helper: the parent draws it after the fit
     "early_fails": ("import mbus_framework.pipeline.figures as F\n"
                     "b, f, c = F.FIGURES['excitation']\n"
@@ -104,6 +107,16 @@ def test_helpers_draw_the_same_bytes(serial, tmp_path):
     assert _pngs(tmp_path / "run") == serial
     report = (tmp_path / "run" / "report.html").read_text()
     assert report.count("data:image/png;base64,") == len(serial)
+
+
+@LINUX
+def test_an_early_figure_at_another_dpi_is_drawn_again(serial, tmp_path):
+    """A PNG drawn before the fit at another resolution than the one asked for is not used: the
+    helpers draw that figure again."""
+    status, started, imported, early = _run(tmp_path / "run", "early_other_dpi")
+    assert status == 0 and all(started) and early == ["excitation"]
+    assert not imported  # the helpers drew it again, not the parent
+    assert _pngs(tmp_path / "run") == serial
 
 
 @LINUX
@@ -238,15 +251,15 @@ def test_records_are_passed_on_as_soon_as_they_are_whole():
     unreadable record stops the reading of that pipe."""
     import pickle
 
-    records = [("fit", b"\x89PNG-1" * 50), ("correlation", b"\x89PNG-2" * 70)]
+    records = [("fit", 100, b"\x89PNG-1" * 50), ("correlation", 100, b"\x89PNG-2" * 70)]
     stream = b"".join(figure_workers.FRAME.pack(len(b)) + b
                       for b in (pickle.dumps(r) for r in records))
-    got: list[tuple[str, bytes]] = []
+    got: list[tuple[str, int, bytes]] = []
     buf = bytearray()
     for i in range(0, len(stream), 37):  # arbitrary chunks
         buf += stream[i:i + 37]
-        assert figure_workers._records(buf, lambda name, png: got.append((name, png)))
+        assert figure_workers._records(buf, lambda *record: got.append(record))
     assert got == records and not buf
     bad = bytearray(figure_workers.FRAME.pack(5) + b"junk!")
-    assert not figure_workers._records(bad, lambda name, png: got.append((name, png)))
+    assert not figure_workers._records(bad, lambda *record: got.append(record))
     assert got == records

@@ -3,8 +3,9 @@
 Importing matplotlib and drawing six figures costs about as much CPU as the rest of a run.
 ``mbus-run`` forks a helper as it starts (:func:`prestart`; a run from Python forks it in
 :func:`start`, once the config says the run will plot); the helper imports matplotlib (and loads
-its fonts) while the parent imports the rest, reads the config, acquires and fits. :meth:`Helpers.render` sends
-it the :class:`~mbus_framework.pipeline.figures.FitData` (pickled, over a pipe); the helper forks
+its fonts) while the parent imports the rest, reads the config, acquires and fits. :meth:`Helpers.submit` sends
+it the :class:`~mbus_framework.pipeline.figures.FitData` (pickled, over a pipe that never blocks
+the parent); the helper forks
 once more and the two draw half of the figures each, so on two cores the figures cost about half
 their CPU time in wall time, and the parent never imports matplotlib. The figures that need no fit
 (:data:`~mbus_framework.pipeline.figures.BEFORE_FIT`: the excitation spectrum) are sent before the
@@ -123,8 +124,8 @@ class Helpers:
             self.submit(d, dpi)
         pngs: dict[str, bytes] = {}
 
-        def arrived(name: str, png: bytes) -> None:
-            if name in names and name not in pngs:
+        def arrived(name: str, drawn_at: int, png: bytes) -> None:
+            if name in names and name not in pngs and drawn_at == dpi:
                 if deliver is not None:
                     deliver(name, png)  # if it fails, the figure counts as missing (and fails again below)
                 pngs[name] = png
@@ -139,7 +140,7 @@ class Helpers:
         self.close(wait=finished)
         for name in names:
             if name not in pngs:
-                arrived(name, render_all(d, dpi, [name])[name])
+                arrived(name, dpi, render_all(d, dpi, [name])[name])
         return {n: pngs[n] for n in names}
 
     def _send(self, message: tuple) -> None:
@@ -296,12 +297,12 @@ def _warm() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=10)
 
 
-#: A record on a helper's pipe: its length (8 bytes, little-endian), then the pickled (name, PNG bytes).
+#: A record on a helper's pipe: its length (8 bytes, little-endian), then the pickled (name, dpi, PNG bytes).
 FRAME = struct.Struct("<Q")
 
 
 def _draw(d: "FitData", dpi: int, names: list[str], out: "io.BufferedWriter") -> None:
-    """Draw ``names``, writing a (name, PNG bytes) record (:data:`FRAME`) to ``out`` as each is done; a figure that fails
+    """Draw ``names``, writing a (name, dpi, PNG bytes) record (:data:`FRAME`) to ``out`` as each is done; a figure that fails
     is left for the parent. The cyclic garbage collector waits while a figure is drawn (matplotlib
     makes thousands of linked objects: about a tenth of the drawing time) and runs between figures,
 over the figure's objects only (the helper froze what it had loaded before)."""
@@ -316,19 +317,20 @@ over the figure's objects only (the helper froze what it had loaded before)."""
         finally:
             gc.enable()
             gc.collect()
-        record = pickle.dumps((name, png), protocol=pickle.HIGHEST_PROTOCOL)
+        record = pickle.dumps((name, dpi, png), protocol=pickle.HIGHEST_PROTOCOL)
         out.write(FRAME.pack(len(record)) + record)
         out.flush()
 
 
 def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int],
-              arrived: Callable[[str, bytes], None]) -> bool:
+              arrived: Callable[[str, int, bytes], None]) -> bool:
     """Write ``pending`` to the helper (then close ``data_fd``) while reading both helpers' pipes,
-    passing each whole (name, PNG) record to ``arrived`` as it comes, until both pipes close
+    passing each whole (name, dpi, PNG) record to ``arrived`` as it comes, until both pipes close
     (True) or :data:`SILENCE` passes (False). Both at once: a helper that is still sending an
     early figure reads the rest of the data only after. A record that cannot be read ends the
-    reading of that pipe (those figures are drawn by the parent)."""
+    reading of that pipe (False: those figures are drawn by the parent)."""
     buffers = {fd: bytearray() for fd in fds}
+    readable = True
     try:
         with selectors.DefaultSelector() as sel:
             for fd in fds:
@@ -358,25 +360,26 @@ def _exchange(data_fd: int, pending: bytearray, fds: tuple[int, int],
                     buf += chunk
                     if not _records(buf, arrived):
                         sel.unregister(key.fd)  # unreadable: ignore the rest of this pipe
-            return not sel.get_map()
+                        readable = False
+            return readable and not sel.get_map()
     finally:
         if data_fd >= 0:
             os.close(data_fd)
 
 
-def _records(buf: bytearray, arrived: Callable[[str, bytes], None]) -> bool:
+def _records(buf: bytearray, arrived: Callable[[str, int, bytes], None]) -> bool:
     """Pass the whole records at the start of ``buf`` to ``arrived`` and remove them; False when
-    one is not a (name, PNG bytes) record."""
+    one is not a (name, dpi, PNG bytes) record."""
     while len(buf) >= FRAME.size:
         (size,) = FRAME.unpack_from(buf)
         if len(buf) < FRAME.size + size:
             return True  # the rest of this record has not come yet
         try:
-            name, png = pickle.loads(bytes(buf[FRAME.size:FRAME.size + size]))
+            name, dpi, png = pickle.loads(bytes(buf[FRAME.size:FRAME.size + size]))
         except Exception:  # noqa: BLE001 - garbage on the pipe
             return False
-        if not (isinstance(name, str) and isinstance(png, bytes)):
+        if not (isinstance(name, str) and isinstance(dpi, int) and isinstance(png, bytes)):
             return False
         del buf[:FRAME.size + size]
-        arrived(name, png)
+        arrived(name, dpi, png)
     return True
