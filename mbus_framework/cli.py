@@ -147,14 +147,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _prestart(args: argparse.Namespace) -> None:
-    """For a run that may plot: import once what the run and the figure helper both need, then
-    fork the helper, which imports matplotlib while the run goes on
-    (:mod:`~mbus_framework.pipeline.figure_workers`)."""
+    """For a run that may plot: fork the figure helper as soon as numpy is loaded, so that it
+    imports matplotlib and the figures' modules on the second core while this process imports
+    scipy, pydantic and the plugins (:mod:`~mbus_framework.pipeline.figure_workers`)."""
     from mbus_framework.startup import defer_f2py
 
-    defer_f2py()  # before scipy loads (numpy.f2py is about 0.1 s of a run's start-up)
+    defer_f2py()  # imports numpy; before scipy loads (numpy.f2py is about 0.1 s of a run's start-up)
     if not (args.no_plots or args.study or args.compare_models or args.design_excitation):
-        import mbus_framework.pipeline.figures  # noqa: F401 - numpy, scipy.special, the engine's arrays
         from mbus_framework.pipeline import figure_workers
 
         figure_workers.prestart()

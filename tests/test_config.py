@@ -454,3 +454,17 @@ def test_validate_options_without_options_uses_defaults():
 def test_errors_are_mbus_errors_not_pydantic_errors(tmp_path):
     with pytest.raises(MbusError):
         load_config(write(tmp_path, variant(sample__length="x")))
+
+
+def test_read_yaml_gives_each_caller_its_own_copy_of_the_current_file(tmp_path):
+    """The parse is remembered by text (mbus-run reads its config several times), but a caller's
+    changes never reach the next reader, and a changed file is read anew."""
+    from mbus_framework.pipeline.config import read_yaml
+
+    path = tmp_path / "c.yaml"
+    path.write_text("model:\n  name: kelvin_voigt\n  options: {n_elements: 3}\n")
+    first = read_yaml(path)
+    first["model"]["options"]["n_elements"] = 99
+    assert read_yaml(path) == {"model": {"name": "kelvin_voigt", "options": {"n_elements": 3}}}
+    path.write_text("model:\n  name: maxwell\n")
+    assert read_yaml(path) == {"model": {"name": "maxwell"}}

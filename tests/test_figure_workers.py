@@ -35,17 +35,25 @@ def start():
     started.append(helpers is not None)
     return helpers
 fw.start = start
+early = []
+draw_early = fw.Helpers.draw_early
+def record_early(self, d, dpi=100):
+    draw_early(self, d, dpi)
+    early.extend(self.early)
+fw.Helpers.draw_early = record_early
 SABOTAGE
 status = main(sys.argv[1:])
-print("\\n@@RUN@@" + json.dumps([status, started, "matplotlib" in sys.modules]))
+print("\\n@@RUN@@" + json.dumps([status, started, "matplotlib" in sys.modules, early]))
 """
 
 SABOTAGE = {
     "none": "",
     # the helper (and its fork) die as soon as they have the data: nothing comes back
-    "dies": "fw._draw = lambda d, dpi, names, fd: os._exit(3)",
+    "dies": "fw._draw = lambda d, dpi, names, out: os._exit(3)",
     # the helpers send bytes that are no record at all
-    "garbage": "fw._draw = lambda d, dpi, names, fd: (os.write(fd, b'not a pickle' * 1000), os.close(fd))",
+    "garbage": "fw._draw = lambda d, dpi, names, out: (out.write(b'not a pickle' * 1000), out.flush())",
+    # a whole record that is no (name, PNG) pickle
+    "bad_record": "fw._draw = lambda d, dpi, names, out: (out.write(fw.FRAME.pack(12000) + b'not a pickle' * 1000), out.flush())",
     # one figure fails to draw in the helpers (only there): it is drawn in the parent instead
     "one_fails": ("import mbus_framework.pipeline.figures as F\n"
                   "b, f, c = F.FIGURES['fit']\n"
@@ -53,10 +61,20 @@ SABOTAGE = {
                   "    if os.getpid() != _p: raise RuntimeError('helper only')\n"
                   "    return b(d, fig)\n"
                   "F.FIGURES['fit'] = (broken, f, c)"),
+    # the figure drawn before the fit is drawn at another resolution than the run asks for later
+    "early_other_dpi": ("_early_at = fw.Helpers.draw_early\n"
+                        "fw.Helpers.draw_early = lambda self, d, dpi=100: _early_at(self, d, 50)"),
+    # the figure drawn before the fit fails in the helper: the parent draws it after the fit
+    "early_fails": ("import mbus_framework.pipeline.figures as F\n"
+                    "b, f, c = F.FIGURES['excitation']\n"
+                    "def broken(d, fig=None, _p=os.getpid()):\n"
+                    "    if os.getpid() != _p: raise RuntimeError('helper only')\n"
+                    "    return b(d, fig)\n"
+                    "F.FIGURES['excitation'] = (broken, f, c)"),
 }
 
 
-def _run(out: Path, sabotage: str = "none", helpers: str = "1") -> tuple[int, list[bool], bool]:
+def _run(out: Path, sabotage: str = "none", helpers: str = "1") -> tuple[int, list[bool], bool, list[str]]:
     code = _RUN.replace("SABOTAGE", SABOTAGE[sabotage])
     done = subprocess.run([sys.executable, "-c", code, str(POTATO), "-o", str(out), "-q", *FAST], cwd=ROOT,
                           capture_output=True, text=True, timeout=600,
@@ -72,8 +90,8 @@ def _pngs(run: Path) -> dict[str, bytes]:
 @pytest.fixture(scope="module")
 def serial(tmp_path_factory) -> dict[str, bytes]:
     out = tmp_path_factory.mktemp("serial") / "run"
-    status, started, imported = _run(out, helpers="0")
-    assert status == 0 and not any(started) and imported
+    status, started, imported, early = _run(out, helpers="0")
+    assert status == 0 and not any(started) and imported and not early
     pngs = _pngs(out)
     assert {FIGURES[n][1] for n in FIGURES} <= set(pngs)  # all six figures apply to a potato run
     return pngs
@@ -81,8 +99,10 @@ def serial(tmp_path_factory) -> dict[str, bytes]:
 
 @LINUX
 def test_helpers_draw_the_same_bytes(serial, tmp_path):
-    status, started, imported = _run(tmp_path / "run")
+    """The excitation spectrum is sent before the fit (it needs none) and comes back the same."""
+    status, started, imported, early = _run(tmp_path / "run")
     assert status == 0 and started and all(started)
+    assert early == ["excitation"]
     assert not imported  # the run's own process never imported matplotlib: the helpers drew
     assert _pngs(tmp_path / "run") == serial
     report = (tmp_path / "run" / "report.html").read_text()
@@ -90,9 +110,19 @@ def test_helpers_draw_the_same_bytes(serial, tmp_path):
 
 
 @LINUX
-@pytest.mark.parametrize("sabotage", ["dies", "garbage", "one_fails"])
+def test_an_early_figure_at_another_dpi_is_drawn_again(serial, tmp_path):
+    """A PNG drawn before the fit at another resolution than the one asked for is not used: the
+    helpers draw that figure again."""
+    status, started, imported, early = _run(tmp_path / "run", "early_other_dpi")
+    assert status == 0 and all(started) and early == ["excitation"]
+    assert not imported  # the helpers drew it again, not the parent
+    assert _pngs(tmp_path / "run") == serial
+
+
+@LINUX
+@pytest.mark.parametrize("sabotage", ["dies", "garbage", "bad_record", "one_fails", "early_fails"])
 def test_a_failing_helper_costs_only_time(serial, tmp_path, sabotage):
-    status, started, imported = _run(tmp_path / "run", sabotage)
+    status, started, imported, _early = _run(tmp_path / "run", sabotage)
     assert status == 0 and started and all(started)
     assert imported  # the parent drew what the helpers did not deliver
     assert _pngs(tmp_path / "run") == serial
@@ -119,6 +149,10 @@ def test_split_balances_the_figures():
     assert sorted(a + b) == sorted(names) and not set(a) & set(b)
     cost = [sum(figure_workers.WEIGHT[n] for n in g) for g in (a, b)]
     assert abs(cost[0] - cost[1]) <= max(figure_workers.WEIGHT.values())
+    assert cost[0] >= cost[1]  # the helper draws the costlier group, its fork the other
+    rest = [n for n in names if n != "excitation"]  # what is left once the early figure is drawn
+    a, b = figure_workers.split(rest)
+    assert sum(figure_workers.WEIGHT[n] for n in a) >= sum(figure_workers.WEIGHT[n] for n in b)
     assert figure_workers.split(["fit"]) == (["fit"], [])
 
 
@@ -187,3 +221,45 @@ def test_helpers_end_with_a_killed_run(tmp_path):
     while group() and time.monotonic() < deadline:
         time.sleep(0.1)
     assert group() == []
+
+
+def test_figures_before_the_fit_need_no_prediction():
+    """The :data:`BEFORE_FIT` figures drawn from the record alone (prediction unknown) are byte for
+    byte those drawn after the fit; every other figure needs the fit."""
+    import types
+
+    import numpy as np
+
+    from mbus_framework.interfaces.excitation import Waveform
+    from mbus_framework.pipeline.figures import BEFORE_FIT, FitData, applicable, render_all
+
+    rng = np.random.default_rng(3)
+    t = np.arange(2000) * 4e-8
+    u = np.sign(rng.normal(size=t.size))
+    y = np.convolve(u, np.exp(-np.arange(60) / 9.0), mode="full")[: t.size] + 0.1 * rng.normal(size=t.size)
+    record = types.SimpleNamespace(t=t, u=u, y=y)
+    designed = Waveform(t, u)
+    before = FitData.before_fit(record, designed)
+    after = FitData(t, u, y, 0.9 * y, ["a"], [{"iteration": 0, "cost": 1.0, "theta": [1.0]}], designed, "title")
+    assert np.isnan(before.yhat).all()
+    assert set(BEFORE_FIT) <= set(applicable(before))
+    assert render_all(before, 60, list(BEFORE_FIT)) == render_all(after, 60, list(BEFORE_FIT))
+
+
+def test_records_are_passed_on_as_soon_as_they_are_whole():
+    """The parent saves each PNG as its record completes, whatever the pipe's chunking; an
+    unreadable record stops the reading of that pipe."""
+    import pickle
+
+    records = [("fit", 100, b"\x89PNG-1" * 50), ("correlation", 100, b"\x89PNG-2" * 70)]
+    stream = b"".join(figure_workers.FRAME.pack(len(b)) + b
+                      for b in (pickle.dumps(r) for r in records))
+    got: list[tuple[str, int, bytes]] = []
+    buf = bytearray()
+    for i in range(0, len(stream), 37):  # arbitrary chunks
+        buf += stream[i:i + 37]
+        assert figure_workers._records(buf, lambda *record: got.append(record))
+    assert got == records and not buf
+    bad = bytearray(figure_workers.FRAME.pack(5) + b"junk!")
+    assert not figure_workers._records(bad, lambda *record: got.append(record))
+    assert got == records

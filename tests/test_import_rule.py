@@ -24,6 +24,9 @@ POTATO = ROOT / "configs" / "potato.yaml"
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
 # Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
 UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer")
+# Not needed by a simulated fit with the LM solver: CasADi (the collocation solver), python-control
+# (state-space export), the studies and the analyses.
+OTHER_TOOLS = ("casadi", "control", "mbus_framework.studies", "mbus_framework.analysis")
 # --help and --version: nothing numerical at all.
 HEAVY = (*NEVER, "scipy.stats", "numpy", "scipy", "matplotlib", "pydantic", "mbus_framework.estimation.problem")
 # --list-plugins imports each plugin module (their classes carry the summaries), but not what a
@@ -74,7 +77,7 @@ def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
     status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], env={"MBUS_FIGURE_WORKERS": helpers})
     assert status == 0
     assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
-    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats", *UNUSED)) == []
+    assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats", *UNUSED, *OTHER_TOOLS)) == []
     if helpers == "1" and sys.platform.startswith("linux"):
         assert _loaded(modules, ("matplotlib",)) == []  # the helpers drew every figure
     else:
@@ -133,3 +136,14 @@ def test_campaign_files_are_still_recognised(tmp_path):
     for path in (campaign, bad, POTATO, tmp_path / "missing.yaml", ROOT / "pyproject.toml"):
         assert _is_campaign_file(str(path)) == is_campaign_file(path), path
     assert _is_campaign_file(str(campaign))
+
+
+def test_the_figure_helpers_need_no_scipy():
+    """The figure helper is forked right after numpy loads and imports only what drawing needs:
+    the figures module (and report.html's helpers) load no scipy, no pydantic and not the simulation engine."""
+    code = ("import json, sys\n"
+            "import mbus_framework.pipeline.figures, mbus_framework.pipeline.html\n"
+            "print('\\n@@MODULES@@' + json.dumps([0, sorted(sys.modules)]))\n")
+    status, modules = _modules([], code=code)
+    assert status == 0 and "mbus_framework.pipeline.figures" in modules
+    assert _loaded(modules, ("scipy", "pydantic", "mbus_framework.engine.simulation", "matplotlib.pyplot")) == []

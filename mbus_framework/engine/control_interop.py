@@ -14,18 +14,23 @@
 """
 from __future__ import annotations
 
+# The simulation engine (scipy.linalg) is imported where it is used: the run's figures need only
+# the H1 estimate, and the figure helpers should not load scipy for it.
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mbus_framework.interfaces.model import MediumModel
-from mbus_framework.engine.simulation import as_float_ss, discretize
+if TYPE_CHECKING:  # pragma: no cover
+    from mbus_framework.interfaces.model import MediumModel
 
 
 def to_control(model: MediumModel, theta, dt: float | None = None):
     """``control.StateSpace`` of ``model`` at ``theta``: continuous, or ZOH-discrete at ``dt`` [s]."""
     import control
+
+    from mbus_framework.engine.simulation import as_float_ss, discretize
 
     A, B, C, D = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
     if dt is None:
@@ -39,6 +44,8 @@ def frequency_response(model: MediumModel, theta, f, dt: float | None = None) ->
 
     One batched direct solve (s I - A) x = B per frequency (fine up to a few hundred states).
     """
+    from mbus_framework.engine.simulation import as_float_ss, discretize
+
     f = np.atleast_1d(np.asarray(f, dtype=float))
     A, B, C, D = as_float_ss(model.state_space(np.asarray(theta, dtype=float)))
     if dt is None:

@@ -11,6 +11,8 @@ itself is bounded in size, depth and alias expansion (:mod:`mbus_framework.pipel
 """
 from __future__ import annotations
 
+import copy
+import functools
 import math
 from pathlib import Path
 from typing import Any, Literal
@@ -194,17 +196,26 @@ class RunConfig(_Strict):
 
 
 def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Safe-load a YAML mapping from ``path`` (bounded: see :mod:`~mbus_framework.pipeline.yaml_loader`)."""
+    """Safe-load a YAML mapping from ``path`` (bounded: see :mod:`~mbus_framework.pipeline.yaml_loader`);
+    the caller's own copy (the file is read every time; the same text is parsed once)."""
     text = read_config_text(path)
     try:
-        data = yaml_load(text)
+        data = _parsed_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: {describe_yaml_error(exc)}") from None
     if data is None:
         raise ConfigError(f"{path}: config file is empty")
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: top level must be a mapping of sections, not {type(data).__name__}")
-    return data
+    return copy.deepcopy(data)
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed_yaml(text: str) -> Any:
+    """:func:`yaml_load` remembered by text: ``mbus-run`` reads its config up to five times
+    (which kind of config, then the validation), and PyYAML's pure-Python parser costs about 5 ms
+    a time. Callers get a deep copy (:func:`read_yaml`), never this object."""
+    return yaml_load(text)
 
 
 def config_mapping_or_none(path: str | Path) -> dict[str, Any] | None:
@@ -221,8 +232,6 @@ def config_mapping_or_none(path: str | Path) -> dict[str, Any] | None:
 
 def apply_overrides(data: dict[str, Any], overrides: list[str], where: str = "--set") -> dict[str, Any]:
     """Apply ``dotted.key=value`` overrides (value parsed as YAML) to a copy of ``data``."""
-    import copy
-
     out = copy.deepcopy(data)
     for item in overrides:
         key, sep, text = item.partition("=")

@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import special
 
 from mbus_framework.engine.control_interop import transfer_function_estimate
 from mbus_framework.engine.moving import moving_average
-from mbus_framework.interfaces.excitation import Waveform, power_spectrum
+from mbus_framework.interfaces.waveform import Waveform, power_spectrum
 from mbus_framework.pipeline.recorded_input import welch_spectrum
 from mbus_framework.pipeline.units import UNKNOWN, label_axis
 
@@ -75,6 +75,12 @@ class FitData:
         return float(self.t[1] - self.t[0])
 
     @classmethod
+    def before_fit(cls, problem: "FitProblem", designed: Waveform | None = None) -> "FitData":
+        """The record alone, before the solver runs: the prediction is not known yet (NaN), so
+        only the :data:`BEFORE_FIT` figures can be drawn from it (the same as after the fit)."""
+        return cls(problem.t, problem.u, problem.y, np.full_like(problem.y, np.nan, dtype=float), designed=designed)
+
+    @classmethod
     def from_fit(cls, problem: "FitProblem", fit: "FitResult", designed: Waveform | None = None,
                  title: str = "", dispersion: dict[str, Any] | None = None,
                  units: dict[str, Any] | None = None) -> "FitData":
@@ -99,8 +105,9 @@ def correlation(a: np.ndarray, b: np.ndarray, lags: int) -> tuple[np.ndarray, np
 
 def confidence_bound(n: int, level: float = LEVEL) -> float:
     """Half-width z / sqrt(N) of the band a white residual's correlations stay inside with
-    probability ``level`` at each lag (z the standard normal quantile)."""
-    return float(special.ndtri(0.5 + level / 2) / np.sqrt(n))
+    probability ``level`` at each lag (z the standard normal quantile; the standard library's,
+    so that the figure helpers need not import scipy.special)."""
+    return float(NormalDist().inv_cdf(0.5 + level / 2) / np.sqrt(n))
 
 
 def _new(fig: "Figure | None", size: tuple[float, float]) -> "Figure":
@@ -376,6 +383,11 @@ FIGURES = {
     "dispersion": (dispersion_figure, "dispersion.png",
                    "Phase velocity and attenuation of the fitted material over the record's band."),
 }
+
+
+#: Figures drawn from the fitted record and the design alone (t, u, designed): the same before the
+#: fit as after it (the figure helpers draw them while the run fits).
+BEFORE_FIT = ("excitation",)
 
 
 def applicable(d: FitData) -> list[str]:

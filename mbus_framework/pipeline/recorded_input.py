@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mbus_framework.interfaces.excitation import Spectrum, Waveform, crest_factor, power_spectrum
+from mbus_framework.interfaces.waveform import Spectrum, Waveform, crest_factor, power_spectrum
 
 if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.interfaces.backend import Measurement

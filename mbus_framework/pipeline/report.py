@@ -97,15 +97,19 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
 def write_figures(run_dir: Path, data: "FitData", dpi: int = 100,
                   helpers: "Helpers | None" = None) -> tuple[dict[str, str], dict[str, bytes]]:
     """Draw every figure once (by the forked ``helpers`` when given,
-    :mod:`~mbus_framework.pipeline.figure_workers`), write each as a PNG in the run folder;
-    returns the result.json ``files`` entries (``<name>_plot``) and the PNG bytes (for report.html)."""
+    :mod:`~mbus_framework.pipeline.figure_workers`; each PNG is written as it arrives), write each
+    as a PNG in the run folder; returns the result.json ``files`` entries (``<name>_plot``, in
+    :data:`~mbus_framework.pipeline.figures.FIGURES` order) and the PNG bytes (for report.html)."""
     from mbus_framework.pipeline.figures import FIGURES, render_all
     from mbus_framework.pipeline.storage import atomic_write_bytes
 
-    pngs = helpers.render(data, dpi) if helpers is not None else render_all(data, dpi)
-    files = {}
-    for name, png in pngs.items():
-        filename = FIGURES[name][1]
-        atomic_write_bytes(Path(run_dir) / filename, png)
-        files[f"{name}_plot"] = filename
-    return files, pngs
+    def save(name: str, png: bytes) -> None:
+        atomic_write_bytes(Path(run_dir) / FIGURES[name][1], png)
+
+    if helpers is not None:
+        pngs = helpers.render(data, dpi, save)
+    else:
+        pngs = render_all(data, dpi)
+        for name, png in pngs.items():
+            save(name, png)
+    return {f"{name}_plot": FIGURES[name][1] for name in pngs}, pngs

@@ -11,7 +11,7 @@ from __future__ import annotations
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import yaml
@@ -156,16 +156,21 @@ def input_warnings(m: Measurement, designed: Waveform | None) -> list[str]:
 
 
 def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
-             progress: Progress | None = None) -> RunOutcome:
+             progress: Progress | None = None,
+             before_fit: Callable[[FitProblem], None] | None = None) -> RunOutcome:
     """Compensate, fit and build the result document; touches no file. Every stage is an
     interruption checkpoint (:mod:`~mbus_framework.pipeline.interrupts`); numeric failures inside
-    the solver or the uncertainty analysis are one-line errors (:func:`~mbus_framework.pipeline.limits.estimation_boundary`)."""
+    the solver or the uncertainty analysis are one-line errors (:func:`~mbus_framework.pipeline.limits.estimation_boundary`).
+    ``before_fit`` gets the fitting problem before the solver starts (a run sends the figures
+    that need no fit to its figure helpers)."""
     recorded = m
     m, reduction = reduce_record(m, c.config.estimation, c.source)
     limits.check_memory(c, len(m.t), "the record (saved; not fitted)", float(m.t[1] - m.t[0]))
     with limits.plugin_failures(c.registry, c.source):
         compensated = c.compensator.apply(m)
         problem = make_problem(c, compensated)
+    if before_fit is not None:
+        before_fit(problem)
     interrupts.check()
     with limits.estimation_boundary(c):
         fit = c.solver.solve(problem, interrupts.CheckedProgress(progress))
@@ -185,19 +190,22 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
 
 
 def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helpers: Helpers | None = None) -> None:
-    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given) and
-    report.html; result.json is written before any figure is drawn, so a plotting failure cannot
-    lose the estimates."""
+    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given, which
+    get the data first and draw while this process writes) and report.html; result.json is
+    written before any figure is drawn here, so a plotting failure cannot lose the estimates."""
     result, fit = outcome.result, outcome.fit
+    data = outcome.fit_data() if plots else None
+    if data is not None and helpers is not None:
+        helpers.submit(data)
     if fit.trace:
         write_trace(run_dir / "trace.csv", fit)
         result["files"]["trace"] = "trace.csv"
     atomic_write_json(run_dir / "result.json", result)
     pngs = None
-    if plots:
+    if data is not None:
         from mbus_framework.pipeline.report import write_figures
 
-        files, pngs = write_figures(run_dir, outcome.fit_data(), helpers=helpers)
+        files, pngs = write_figures(run_dir, data, helpers=helpers)
         result["files"].update(files)
     result["files"]["report"] = REPORT_FILE
     atomic_write_json(run_dir / "result.json", result)
@@ -251,7 +259,8 @@ def execute(
             else:
                 save_measurement(run_dir, limits.checked_measurement(measurement, c))
             interrupts.check()
-            outcome = estimate(c, measurement, designed, progress)
+            early = None if helpers is None else (lambda p: helpers.draw_early(FitData.before_fit(p, designed)))
+            outcome = estimate(c, measurement, designed, progress, early)
             outcome.run_dir = run_dir
             write_outputs(run_dir, outcome, plots, helpers)
             return outcome
