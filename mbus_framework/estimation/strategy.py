@@ -118,6 +118,7 @@ class _Search:
         self.filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
         self.floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
         self.best: LocalResult | None = None
+        self.stopped_short: tuple[LocalResult, int] | None = None  # the last start's, if a short trial
         self.minima: list[LocalResult] = []  # every time-domain fit's end point
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
@@ -208,24 +209,29 @@ class _Search:
             set_total(len(self.report.starts) + more)
 
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
-                  explore: bool = False, windows: int = 0) -> bool:
+                  explore: bool = False, windows: int = 0, max_nfev: int | None = None,
+                  trial: bool = False) -> bool:
         """One time-domain local fit (band stages or ``windows`` record windows, then the full
-        record); True when accepted. A start the time budget stops is recorded as stopped and
-        the :class:`SearchTimeout` passed on."""
+        record); True when accepted. ``max_nfev`` bounds the full-band fit; with ``trial`` a fit
+        that runs out of it before converging is a short trial (:attr:`stopped_short` then holds
+        its end and the rest of the start's budget, and it is not counted a minimum). A start the
+        time budget stops is recorded as stopped and the :class:`SearchTimeout` passed on."""
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
         if spectral_cost is not None:
             entry["spectral_cost"] = spectral_cost
         before = self.clock.evaluations
+        self.stopped_short = None
         try:
-            return self._fit_start(theta, origin, entry, explore, windows)
+            return self._fit_start(theta, origin, entry, explore, windows, max_nfev, trial)
         except SearchTimeout:
             entry.update(stopped="time budget ran out", evaluations=self.clock.evaluations - before)
             self.nfev += self.clock.evaluations - before  # the abandoned fit's model evaluations
             self.report.starts.append(entry)
             raise
 
-    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int) -> bool:
+    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int,
+                   max_nfev: int | None = None, trial: bool = False) -> bool:
         o, p = self.options, self.problem
         if explore:
             if o.time_scale:
@@ -245,15 +251,21 @@ class _Search:
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
             path += _stage_trace(res, f"first {n} samples")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
-        precise = not explore and not origin.endswith("(as given)")
-        res = self.local_fit(p, theta, None, (10 if precise else 2) * o.stage_max_nfev, precise)
+        precise = not explore and "(as given" not in origin
+        budget = (10 if precise else 2) * o.stage_max_nfev
+        res = self.local_fit(p, theta, None, min(budget, max_nfev or budget), precise)
         self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
         res.trace = path + _stage_trace(res, "full band")
         verdict = self.judge(res)
         entry.update(end=dict(zip(self.names, map(float, res.theta))), cost=res.cost, verdict=verdict.as_dict(),
                      residual_autocorrelation=verdict.whiteness)
+        short = trial and res.nfev < budget and res.status == 0 and not verdict.accepted
+        if short:  # stopped by the trial's bound, not at a minimum: resumed later if still needed
+            entry["stopped"] = f"short trial: {res.nfev} evaluations without converging"
+            self.stopped_short = (res, budget - res.nfev)
         self.report.starts.append(entry)
-        self.minima.append(res)
+        if not short:
+            self.minima.append(res)
         if self.best is None or res.cost < self.best.cost * (1 - 1e-9) - self.floor:
             self.best, self.verdict, self.report.winner = res, verdict, entry["index"]
         if self.progress:
@@ -407,11 +419,22 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             yield from raw
 
     tried = 0
+    waiting: list[tuple[gs.Candidate, LocalResult, int]] = []  # short trials that did not converge
     for c in queue():
         if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
-        if s.try_start(c.theta, c.origin, c.cost):
+        # a start not fitted in the frequency domain gets a short trial first (o.trial_nfev);
+        # if it has not converged, the frequency-domain starts (next to their minima) go first
+        trial = o.trial_nfev if (c.origin.endswith("(as given)") and spectral_ok) else None
+        if s.try_start(c.theta, c.origin, c.cost, max_nfev=trial, trial=trial is not None):
+            return True
+        if s.stopped_short is not None:
+            waiting.append((c, *s.stopped_short))
+    for c, res, left in waiting:  # resumed from where its trial stopped, with the rest of its budget
+        if out_of_time():
+            break
+        if s.try_start(res.theta, c.origin.replace("(as given)", "(as given, resumed)"), max_nfev=left):
             return True
     # 2. the whole region
     if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
