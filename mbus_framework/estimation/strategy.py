@@ -419,23 +419,38 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             yield from raw
 
     tried = 0
-    waiting: list[tuple[gs.Candidate, LocalResult, int]] = []  # short trials that did not converge
+    waiting: list[tuple[str, LocalResult, int]] = []  # short trials that did not converge
+
+    def attempt(c: gs.Candidate, origin: str) -> bool:
+        """One start with a short trial: the start as given ``trial_nfev``, a frequency-domain
+        candidate ``spectral_trial_nfev`` evaluations (it should be next to its minimum); one
+        that has not converged by then waits until its phase's other starts are tried."""
+        as_given = origin.endswith("(as given)")
+        bound = o.trial_nfev if as_given else o.spectral_trial_nfev
+        bound = bound if (spectral_ok and (as_given or np.isfinite(c.cost))) else None
+        if s.try_start(c.theta, origin, c.cost, max_nfev=bound, trial=bound is not None):
+            return True
+        if s.stopped_short is not None:
+            waiting.append((origin, *s.stopped_short))
+        return False
+
+    def resume() -> bool:
+        """The waiting trials, from where each stopped, with the rest of its budget."""
+        while waiting and not out_of_time():
+            origin, res, left = waiting.pop(0)
+            again = origin.replace("(as given)", "(as given, resumed)") if "(as given)" in origin else f"{origin} (resumed)"
+            if s.try_start(res.theta, again, max_nfev=left):
+                return True
+        return False
+
     for c in queue():
         if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
-        # a start not fitted in the frequency domain gets a short trial first (o.trial_nfev);
-        # if it has not converged, the frequency-domain starts (next to their minima) go first
-        trial = o.trial_nfev if (c.origin.endswith("(as given)") and spectral_ok) else None
-        if s.try_start(c.theta, c.origin, c.cost, max_nfev=trial, trial=trial is not None):
+        if attempt(c, c.origin):
             return True
-        if s.stopped_short is not None:
-            waiting.append((c, *s.stopped_short))
-    for c, res, left in waiting:  # resumed from where its trial stopped, with the rest of its budget
-        if out_of_time():
-            break
-        if s.try_start(res.theta, c.origin.replace("(as given)", "(as given, resumed)"), max_nfev=left):
-            return True
+    if resume():
+        return True
     # 2. the whole region
     if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
         found = s.candidates_from(s.scan(), o.spectral_candidates)
@@ -445,8 +460,10 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             if s.best is not None and _near(c.theta, s.best.theta):
                 continue
             tried += 1
-            if s.try_start(c.theta, "scan", c.cost):
+            if attempt(c, "scan"):
                 return True
+        if resume():
+            return True
     # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
     if o.global_search and o.pole_starts and spectral_ok and not out_of_time():
         poles = s.pole_candidates()
