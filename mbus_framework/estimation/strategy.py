@@ -156,18 +156,24 @@ class _Search:
                 continue
         return gs.distinct(fitted, rtol=0.02)
 
-    def seed_candidates(self, seeds: list[tuple[str, np.ndarray]]) -> list[gs.Candidate]:
+    def seed_candidates(self, seeds: list[tuple[str, np.ndarray]]):
         """Each physics-based start fitted in the frequency domain twice: as it is (its level
-        trusted) and after a shape-first time-scale alignment; distinct, best first."""
+        trusted) and after a shape-first time-scale alignment; best first per seed, in the
+        seeds' order (the user's values before the model's guess), each seed's fits made only
+        when the earlier seeds' were not accepted (a generator); distinct."""
         p, sp, space = self.problem, self.spectrum, self.space
-        out = []
+        done: list[gs.Candidate] = []
         for origin, th in seeds:
+            out = []
             try:
                 out.append(gs.refine(p, sp, gs.Candidate(th, np.nan, origin), space))
             except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                 pass
             out += self.candidates_from([gs.align(p, sp, th, space, origin)], 1)
-        return gs.distinct(out, rtol=0.02)
+            for c in gs.distinct(out, rtol=0.02):
+                if not any(_near(c.theta, d.theta) for d in done):
+                    done.append(c)
+                    yield c
 
     def scan(self) -> list[gs.Candidate]:
         """The multi-level shape x scale scan over the whole region (best distinct first)."""
