@@ -129,7 +129,8 @@ def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_h
         return np.empty(0)
     k = k_lo[:, None] + np.arange(int((k_hi - k_lo).max()) + 1)[None, :]  # (modes, aliases)
     two_pi_k, wj = (2 * np.pi * k)[:, :, None], w[:, None, None]
-    c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, modes, aliases, measured)
+    with np.errstate(over="ignore"):  # a vanishing mode frequency: c beyond any range
+        c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, modes, aliases, measured)
     c = c[(k <= k_hi[:, None])[None, :, :, None] & (c >= c_lo) & (c <= c_hi)]
     if c.size == 0:
         return np.empty(0)
