@@ -92,6 +92,7 @@ class SearchReport:
     box: dict | None = None
     widened: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
+    cpu_time_s: float = 0.0  # CPU seconds of this process spent in the search (the budget's clock)
     stopped_by_budget: str | None = None
 
     def as_dict(self) -> dict:
@@ -400,6 +401,7 @@ def search(
     for i, rec in enumerate(final.trace):
         rec["iteration"] = i
     s.report.wall_time_s = time.perf_counter() - t0
+    s.report.cpu_time_s = clock.elapsed()
     return final, s.report, s.nfev, s.njev
 
 
