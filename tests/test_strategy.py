@@ -332,6 +332,38 @@ def test_a_short_trial_is_resumed_where_it_stopped_when_no_spectral_start_is_acc
     np.testing.assert_array_equal(final.theta, truth)
 
 
+def test_a_frequency_domain_start_that_does_not_converge_in_its_trial_goes_on_when_its_phase_is_done():
+    """A start fitted in the frequency domain should be next to its minimum: one whose
+    time-domain fit has not converged within ``spectral_trial_nfev`` evaluations waits for the
+    other starts of its phase (here the seeds' fits all end at one point: there are none) and
+    then goes on from where it stopped with the rest of its budget (10 stage_max_nfev - trial)."""
+    problem, truth = make_problem(CASES["thin-stiff"])
+    wrong = truth * np.array([1.0, 1.6, 1.0, 0.6])  # a rejected minimum
+    midway = truth * np.array([1.0, 2.0, 1.0, 0.5])
+    calls: list[tuple] = []
+
+    def local(problem_, theta0, band, max_nfev, final):
+        calls.append((max_nfev, final))
+        status, nfev = 1, 3
+        if not final:  # the start as given (fitted at once): a rejected minimum
+            theta = wrong
+        elif max_nfev == 20 and sum(f and n == 20 for n, f in calls) == 1:  # the first spectral start
+            theta, status, nfev = midway, 0, 20
+        else:
+            theta = truth if not np.array_equal(np.asarray(theta0, float), wrong) else wrong
+        return LocalResult(np.asarray(theta, float), cost_at(problem_, theta), nfev=nfev, njev=nfev, status=status,
+                           message="scripted", iterations=nfev)
+
+    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=None, spectral_trial_nfev=20))
+    origins = [st["origin"] for st in report.starts]
+    assert origins[0] == "config (as given)" and not report.starts[0]["verdict"]["accepted"]
+    assert "short trial" in report.starts[1]["stopped"] and not report.starts[1]["verdict"]["accepted"]
+    assert report.accepted and report.winner == 2 and origins[2] == f"{origins[1]} (resumed)"
+    assert report.starts[2]["start"] == pytest.approx(dict(zip(problem.names, midway)))
+    assert calls[2] == (10 * 60 - 20, True)
+    np.testing.assert_array_equal(final.theta, truth)
+
+
 def test_without_a_trial_the_start_as_given_is_fitted_at_once():
     problem, truth = make_problem(CASES["thin-stiff"])
     local = ScriptedLocalFit(truth)
