@@ -82,15 +82,16 @@ def in_process(config: str, overrides: list[str]) -> dict:
     import mbus_framework as mbus
 
     with tempfile.TemporaryDirectory(prefix="mbus-speed-") as tmp:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = mbus.run_config(ROOT / config, overrides, Path(tmp) / "run", plots=False, progress=False)
-        total = time.perf_counter() - t0
+        total, total_cpu = time.perf_counter() - t0, time.process_time() - c0
         record = Path(tmp) / "run" / "measurement.csv"
         import numpy as np
 
         t, u, y = np.loadtxt(record, delimiter=",", skiprows=1, unpack=True)[:3]
     solver = result.document["solver"]
-    return {"total_s": total, "solver_s": solver["wall_time_s"], "nfev": solver.get("nfev"),
+    return {"total_s": total, "total_cpu_s": total_cpu, "solver_s": solver["wall_time_s"],
+            "solver_cpu_s": (result.document.get("strategy") or {}).get("cpu_time_s"), "nfev": solver.get("nfev"),
             "nrmse": result.document["fit"].get("nrmse"), "record": (t, u, y)}
 
 
@@ -106,9 +107,9 @@ def dissertation(u, y, dt) -> dict:
     from dissertation_method import Rk4ForwardDifference, levenberg_marquardt
 
     theta0 = np.array(list(SET2.values()))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     r = levenberg_marquardt(Rk4ForwardDifference(table31_model(), u, dt), y, theta0)
-    return {"time_s": time.perf_counter() - t0, "iterations": r.iterations, "simulations": r.n_simulations + 4 * r.n_jacobians,
+    return {"time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "iterations": r.iterations, "simulations": r.n_simulations + 4 * r.n_jacobians,
             "theta": r.theta.tolist()}
 
 
@@ -130,9 +131,9 @@ def typical_user(t, u, y) -> dict:
         _, yhat, _ = signal.lsim((A, B, C, D), u, t)
         return yhat - y
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     r = least_squares(residual, np.ones(theta0.size), method="trf", max_nfev=400)
-    return {"time_s": time.perf_counter() - t0, "simulations": calls[0], "success": bool(r.success),
+    return {"time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "simulations": calls[0], "success": bool(r.success),
             "theta": (theta0 * np.abs(r.x)).tolist()}
 
 
@@ -168,13 +169,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--skip-alternatives", action="store_true", help="only mbus (the alternatives take tens of seconds)")
     p.add_argument("--out", default=str(HERE / "results" / "speed.json"))
+    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of cases to run (of {', '.join(CASES)})")
+    p.add_argument("--solver-repeats", type=int, default=1, help="in-process runs per case: the solver time is "
+                   "their median (each run's solver wall and CPU time recorded)")
     a = p.parse_args(argv)
+    chosen = [c.strip() for c in a.cases.split(",") if c.strip()]
+    unknown = [c for c in chosen if c not in CASES]
+    if unknown:
+        p.error(f"--cases: unknown case(s) {', '.join(unknown)} (known: {', '.join(CASES)})")
     report: dict = {"load_average_start": list(os.getloadavg()), "cpu_count": os.cpu_count(), "repeats": a.repeats,
                     "whole_process": {"help": whole_process(["--help"], a.repeats)}, "in_process": {}}
     for name, (config, overrides) in CASES.items():
+        if name not in chosen:
+            continue
         sets = [x for o in overrides for x in ("--set", o)]
         report["whole_process"][name] = whole_process([config, *sets], a.repeats)
-        run = in_process(config, overrides)
+        runs = [in_process(config, overrides) for _ in range(max(1, a.solver_repeats))]
+        run = sorted(runs, key=lambda r: r["solver_s"])[len(runs) // 2]
+        run["solver_runs_s"] = [r["solver_s"] for r in runs]
+        run["solver_runs_cpu_s"] = [r["solver_cpu_s"] for r in runs]
+        for r in runs:
+            r.pop("record", None) if r is not run else None
         t, u, y = run.pop("record")
         report["in_process"][name] = run
         if name == "table3_1_set2":
@@ -185,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
                        "lmfit": "not installed: not measured"}
                 for key in ("dissertation", "typical_user_lsim_least_squares"):
                     alt[key]["over_mbus_solver"] = alt[key]["time_s"] / run["solver_s"]
+                    if run.get("solver_cpu_s"):
+                        alt[key]["cpu_over_mbus_solver_cpu"] = alt[key]["cpu_s"] / run["solver_cpu_s"]
                 report["alternatives_table3_1_set2"] = alt
         print(f"{name}: whole process {report['whole_process'][name]['median_s']:.2f} s, "
               f"in process {run['total_s']:.2f} s (solver {run['solver_s']:.2f} s)", flush=True)

@@ -117,3 +117,31 @@ def test_a_ringing_chain_is_found_through_record_windows():
     assert winner["origin"] == "record poles"
     stages = [rec["stage"] for rec in fit.trace]
     assert stages[0] == "first 387 samples" and "first 3100 samples" in stages
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.one_of(st.just(0.0), st.floats(1e-6, 20.0)), min_size=0, max_size=10), st.lists(st.floats(1e-3, np.pi), min_size=1, max_size=6),
+       st.floats(-6.0, 2.0), st.floats(-0.5, 6.0))
+def test_scale_candidates_are_every_alias_crossing_of_every_mode(omega_h, phi, lnc_lo, span):
+    """The (vectorised) time scales c at which a model angle c omega_j h meets a measured angle
+    +-phi_i modulo 2 pi: against a plain enumeration of c = (2 pi k +- phi_i) / (omega_j h),
+    mode by mode and alias by alias (modes with more than 64 aliases in range skipped)."""
+    from mbus_framework.estimation.poles import _scale_candidates
+
+    omega_h, phi = np.array(omega_h), np.array(phi)
+    lnc_hi = lnc_lo + span
+    c_lo, c_hi = np.exp(lnc_lo), np.exp(lnc_hi)
+    expected = set()
+    for w in omega_h[omega_h > 0]:
+        k_lo, k_hi = int(np.floor(c_lo * w / (2 * np.pi))), int(np.floor(c_hi * w / (2 * np.pi))) + 1
+        if k_hi - k_lo > 64:
+            continue
+        for k in range(k_lo, k_hi + 1):
+            for p in phi:
+                for c in ((2 * np.pi * k + p) / w, (2 * np.pi * k - p) / w):
+                    if c_lo <= c <= c_hi:
+                        expected.add(c)
+    got = _scale_candidates(omega_h, phi, lnc_lo, lnc_hi)
+    np.testing.assert_allclose(got, np.log(sorted(expected)), rtol=0, atol=1e-12)
+    if got.size:
+        assert np.all(np.diff(got) > 0)

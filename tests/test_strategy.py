@@ -271,6 +271,106 @@ def test_a_refinement_that_reaches_an_accepted_minimum_is_judged_and_accepted():
     assert "refining the best of" in report.accepted_because
 
 
+class TrialLocalFit:
+    """A scripted solver for the short-trial rule: a fit bounded by ``trial`` evaluations stops
+    at ``midway`` without converging (status 0); a fit from ``midway`` with the rest of the
+    budget returns ``resumed_end``; every other full-band fit returns ``other_end``."""
+
+    def __init__(self, trial, midway, resumed_end, other_end):
+        self.trial, self.midway, self.resumed_end, self.other_end = trial, midway, resumed_end, other_end
+        self.calls: list[tuple] = []
+
+    def __call__(self, problem, theta0, band, max_nfev, final):
+        theta0 = np.asarray(theta0, float)
+        self.calls.append((theta0.copy(), max_nfev, final))
+        status, nfev = 1, 3
+        if max_nfev == self.trial:
+            theta, status, nfev = self.midway, 0, max_nfev
+        elif np.array_equal(theta0, self.midway):
+            theta = self.resumed_end
+        elif final and not np.array_equal(theta0, self.other_end):
+            theta = self.resumed_end if np.array_equal(theta0, self.resumed_end) else self.other_end
+        else:
+            theta = self.other_end if band is None else theta0
+        return LocalResult(np.asarray(theta, float), cost_at(problem, theta), nfev=nfev, njev=nfev, status=status,
+                           message="scripted", iterations=nfev)
+
+
+def test_a_start_as_given_that_does_not_converge_in_its_trial_waits_for_the_spectral_starts():
+    """The initial values as given get a short time-domain trial (``trial_nfev``); one that has
+    not converged by then is not fitted on: the starts fitted in the frequency domain go
+    first, and the first of them accepted ends the search without resuming the trial."""
+    problem, truth = make_problem(CASES["thin-stiff"])
+    midway = truth * np.array([1.0, 2.0, 1.0, 0.5])
+    local = TrialLocalFit(7, midway, resumed_end=midway, other_end=truth)
+    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=7))
+    first = report.starts[0]
+    assert first["origin"] == "config (as given)" and "short trial" in first["stopped"]
+    assert not first["verdict"]["accepted"]
+    assert local.calls[0][1] == 7  # the trial's bound
+    assert report.accepted and report.winner == 1 and len(report.starts) == 2
+    assert "(as given" not in report.starts[1]["origin"] and "spectral_cost" in report.starts[1]
+    np.testing.assert_array_equal(final.theta, truth)
+
+
+def test_a_short_trial_is_resumed_where_it_stopped_when_no_spectral_start_is_accepted():
+    """When every frequency-domain start ends in a rejected minimum, the start as given goes on
+    from the end of its trial with the rest of its budget (2 stage_max_nfev - trial)."""
+    problem, truth = make_problem(CASES["thin-stiff"])
+    midway = truth * np.array([1.0, 2.0, 1.0, 0.5])
+    wrong = truth * np.array([1.0, 1.6, 1.0, 0.6])  # a rejected minimum (see above)
+    local = TrialLocalFit(7, midway, resumed_end=truth, other_end=wrong)
+    options = StrategyOptions(bands=[], trial_nfev=7, stage_max_nfev=30, global_search=False)
+    final, report, _, _ = search(problem, local, options)
+    origins = [st["origin"] for st in report.starts]
+    assert origins[0] == "config (as given)" and origins[-1] == "config (as given, resumed)"
+    assert all(not st["verdict"]["accepted"] for st in report.starts[:-1]) and len(origins) >= 3
+    resumed = report.starts[-1]
+    assert resumed["verdict"]["accepted"] and report.accepted and report.winner == len(origins) - 1
+    assert resumed["start"] == pytest.approx(dict(zip(problem.names, midway)))
+    assert any(np.array_equal(th, midway) and n == 2 * 30 - 7 for th, n, _ in local.calls)
+    np.testing.assert_array_equal(final.theta, truth)
+
+
+def test_a_frequency_domain_start_that_does_not_converge_in_its_trial_goes_on_when_its_phase_is_done():
+    """A start fitted in the frequency domain should be next to its minimum: one whose
+    time-domain fit has not converged within ``spectral_trial_nfev`` evaluations waits for the
+    other starts of its phase (here the seeds' fits all end at one point: there are none) and
+    then goes on from where it stopped with the rest of its budget (10 stage_max_nfev - trial)."""
+    problem, truth = make_problem(CASES["thin-stiff"])
+    wrong = truth * np.array([1.0, 1.6, 1.0, 0.6])  # a rejected minimum
+    midway = truth * np.array([1.0, 2.0, 1.0, 0.5])
+    calls: list[tuple] = []
+
+    def local(problem_, theta0, band, max_nfev, final):
+        calls.append((max_nfev, final))
+        status, nfev = 1, 3
+        if not final:  # the start as given (fitted at once): a rejected minimum
+            theta = wrong
+        elif max_nfev == 20 and sum(f and n == 20 for n, f in calls) == 1:  # the first spectral start
+            theta, status, nfev = midway, 0, 20
+        else:
+            theta = truth if not np.array_equal(np.asarray(theta0, float), wrong) else wrong
+        return LocalResult(np.asarray(theta, float), cost_at(problem_, theta), nfev=nfev, njev=nfev, status=status,
+                           message="scripted", iterations=nfev)
+
+    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=None, spectral_trial_nfev=20))
+    origins = [st["origin"] for st in report.starts]
+    assert origins[0] == "config (as given)" and not report.starts[0]["verdict"]["accepted"]
+    assert "short trial" in report.starts[1]["stopped"] and not report.starts[1]["verdict"]["accepted"]
+    assert report.accepted and report.winner == 2 and origins[2] == f"{origins[1]} (resumed)"
+    assert report.starts[2]["start"] == pytest.approx(dict(zip(problem.names, midway)))
+    assert calls[2] == (10 * 60 - 20, True)
+    np.testing.assert_array_equal(final.theta, truth)
+
+
+def test_without_a_trial_the_start_as_given_is_fitted_at_once():
+    problem, truth = make_problem(CASES["thin-stiff"])
+    local = ScriptedLocalFit(truth)
+    _, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=None, stage_max_nfev=30))
+    assert local.calls[0][1] == 60 and report.accepted and len(report.starts) == 1
+
+
 def test_refinement_never_makes_the_result_worse():
     problem, truth = make_problem(CASES["thin-stiff"])
     final, _, _, _ = search(problem, ScriptedLocalFit(truth, final_cost_factor=10.0), StrategyOptions(bands=[]))

@@ -117,19 +117,24 @@ def _fold(angle: np.ndarray) -> np.ndarray:
 
 
 def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_hi: float) -> np.ndarray:
-    """ln c at which some c omega_j h equals some +-phi_i modulo 2 pi, within [lnc_lo, lnc_hi]."""
-    out = []
+    """ln c at which some c omega_j h equals some +-phi_i modulo 2 pi, within [lnc_lo, lnc_hi]:
+    c = (2 pi k +- phi_i) / (omega_j h) for every alias k of every mode (modes with more than
+    64 aliases in the range skipped: more than a record can tell apart); all modes at once."""
     c_lo, c_hi = np.exp(lnc_lo), np.exp(lnc_hi)
-    for w in omega_h[omega_h > 0]:
-        k_lo, k_hi = int(np.floor(c_lo * w / (2 * np.pi))), int(np.floor(c_hi * w / (2 * np.pi))) + 1
-        if k_hi - k_lo > 64:  # more aliases than a record can tell apart
-            continue
-        k = np.arange(k_lo, k_hi + 1)[:, None]
-        c = np.concatenate([(2 * np.pi * k + phi) / w, (2 * np.pi * k - phi) / w]).ravel()
-        out.append(c[(c >= c_lo) & (c <= c_hi)])
-    if not out:
+    w = omega_h[omega_h > 0]
+    k_lo, k_hi = np.floor(c_lo * w / (2 * np.pi)), np.floor(c_hi * w / (2 * np.pi)) + 1
+    keep = k_hi - k_lo <= 64
+    w, k_lo, k_hi = w[keep], k_lo[keep], k_hi[keep]
+    if w.size == 0:
         return np.empty(0)
-    return np.log(np.unique(np.concatenate(out)))
+    k = k_lo[:, None] + np.arange(int((k_hi - k_lo).max()) + 1)[None, :]  # (modes, aliases)
+    two_pi_k, wj = (2 * np.pi * k)[:, :, None], w[:, None, None]
+    with np.errstate(over="ignore"):  # a vanishing mode frequency: c beyond any range
+        c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, modes, aliases, measured)
+    c = c[(k <= k_hi[:, None])[None, :, :, None] & (c >= c_lo) & (c <= c_hi)]
+    if c.size == 0:
+        return np.empty(0)
+    return np.log(np.unique(c))
 
 
 def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:

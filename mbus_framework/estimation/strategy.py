@@ -92,6 +92,7 @@ class SearchReport:
     box: dict | None = None
     widened: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
+    cpu_time_s: float = 0.0  # CPU seconds of this process spent in the search (the budget's clock)
     stopped_by_budget: str | None = None
 
     def as_dict(self) -> dict:
@@ -118,6 +119,7 @@ class _Search:
         self.filters = [BandFilter(fr * f_sig, len(problem.y), problem.dt) for fr in options.bands if fr * f_sig > 0]
         self.floor = 1e-14 * 0.5 * float(problem.y @ problem.y)  # round-off level of the cost
         self.best: LocalResult | None = None
+        self.stopped_short: tuple[LocalResult, int] | None = None  # the last start's, if a short trial
         self.minima: list[LocalResult] = []  # every time-domain fit's end point
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
@@ -155,18 +157,24 @@ class _Search:
                 continue
         return gs.distinct(fitted, rtol=0.02)
 
-    def seed_candidates(self, seeds: list[tuple[str, np.ndarray]]) -> list[gs.Candidate]:
+    def seed_candidates(self, seeds: list[tuple[str, np.ndarray]]):
         """Each physics-based start fitted in the frequency domain twice: as it is (its level
-        trusted) and after a shape-first time-scale alignment; distinct, best first."""
+        trusted) and after a shape-first time-scale alignment; best first per seed, in the
+        seeds' order (the user's values before the model's guess), each seed's fits made only
+        when the earlier seeds' were not accepted (a generator); distinct."""
         p, sp, space = self.problem, self.spectrum, self.space
-        out = []
+        done: list[gs.Candidate] = []
         for origin, th in seeds:
+            out = []
             try:
                 out.append(gs.refine(p, sp, gs.Candidate(th, np.nan, origin), space))
             except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                 pass
             out += self.candidates_from([gs.align(p, sp, th, space, origin)], 1)
-        return gs.distinct(out, rtol=0.02)
+            for c in gs.distinct(out, rtol=0.02):
+                if not any(_near(c.theta, d.theta) for d in done):
+                    done.append(c)
+                    yield c
 
     def scan(self) -> list[gs.Candidate]:
         """The multi-level shape x scale scan over the whole region (best distinct first)."""
@@ -208,24 +216,29 @@ class _Search:
             set_total(len(self.report.starts) + more)
 
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
-                  explore: bool = False, windows: int = 0) -> bool:
+                  explore: bool = False, windows: int = 0, max_nfev: int | None = None,
+                  trial: bool = False) -> bool:
         """One time-domain local fit (band stages or ``windows`` record windows, then the full
-        record); True when accepted. A start the time budget stops is recorded as stopped and
-        the :class:`SearchTimeout` passed on."""
+        record); True when accepted. ``max_nfev`` bounds the full-band fit; with ``trial`` a fit
+        that runs out of it before converging is a short trial (:attr:`stopped_short` then holds
+        its end and the rest of the start's budget, and it is not counted a minimum). A start the
+        time budget stops is recorded as stopped and the :class:`SearchTimeout` passed on."""
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
         if spectral_cost is not None:
             entry["spectral_cost"] = spectral_cost
         before = self.clock.evaluations
+        self.stopped_short = None
         try:
-            return self._fit_start(theta, origin, entry, explore, windows)
+            return self._fit_start(theta, origin, entry, explore, windows, max_nfev, trial)
         except SearchTimeout:
             entry.update(stopped="time budget ran out", evaluations=self.clock.evaluations - before)
             self.nfev += self.clock.evaluations - before  # the abandoned fit's model evaluations
             self.report.starts.append(entry)
             raise
 
-    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int) -> bool:
+    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int,
+                   max_nfev: int | None = None, trial: bool = False) -> bool:
         o, p = self.options, self.problem
         if explore:
             if o.time_scale:
@@ -245,15 +258,21 @@ class _Search:
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
             path += _stage_trace(res, f"first {n} samples")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
-        precise = not explore and not origin.endswith("(as given)")
-        res = self.local_fit(p, theta, None, (10 if precise else 2) * o.stage_max_nfev, precise)
+        precise = not explore and "(as given" not in origin
+        budget = (10 if precise else 2) * o.stage_max_nfev
+        res = self.local_fit(p, theta, None, min(budget, max_nfev or budget), precise)
         self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
         res.trace = path + _stage_trace(res, "full band")
         verdict = self.judge(res)
         entry.update(end=dict(zip(self.names, map(float, res.theta))), cost=res.cost, verdict=verdict.as_dict(),
                      residual_autocorrelation=verdict.whiteness)
+        short = trial and res.nfev < budget and res.status == 0 and not verdict.accepted
+        if short:  # stopped by the trial's bound, not at a minimum: resumed later if still needed
+            entry["stopped"] = f"short trial: {res.nfev} evaluations without converging"
+            self.stopped_short = (res, budget - res.nfev)
         self.report.starts.append(entry)
-        self.minima.append(res)
+        if not short:
+            self.minima.append(res)
         if self.best is None or res.cost < self.best.cost * (1 - 1e-9) - self.floor:
             self.best, self.verdict, self.report.winner = res, verdict, entry["index"]
         if self.progress:
@@ -382,6 +401,7 @@ def search(
     for i, rec in enumerate(final.trace):
         rec["iteration"] = i
     s.report.wall_time_s = time.perf_counter() - t0
+    s.report.cpu_time_s = clock.elapsed()
     return final, s.report, s.nfev, s.njev
 
 
@@ -407,12 +427,38 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             yield from raw
 
     tried = 0
+    waiting: list[tuple[str, LocalResult, int]] = []  # short trials that did not converge
+
+    def attempt(c: gs.Candidate, origin: str) -> bool:
+        """One start with a short trial: the start as given ``trial_nfev``, a frequency-domain
+        candidate ``spectral_trial_nfev`` evaluations (it should be next to its minimum); one
+        that has not converged by then waits until its phase's other starts are tried."""
+        as_given = origin.endswith("(as given)")
+        bound = o.trial_nfev if as_given else o.spectral_trial_nfev
+        bound = bound if (spectral_ok and (as_given or np.isfinite(c.cost))) else None
+        if s.try_start(c.theta, origin, c.cost, max_nfev=bound, trial=bound is not None):
+            return True
+        if s.stopped_short is not None:
+            waiting.append((origin, *s.stopped_short))
+        return False
+
+    def resume() -> bool:
+        """The waiting trials, from where each stopped, with the rest of its budget."""
+        while waiting and not out_of_time():
+            origin, res, left = waiting.pop(0)
+            again = origin.replace("(as given)", "(as given, resumed)") if "(as given)" in origin else f"{origin} (resumed)"
+            if s.try_start(res.theta, again, max_nfev=left):
+                return True
+        return False
+
     for c in queue():
         if tried >= o.n_starts or (tried and out_of_time()):
             break
         tried += 1
-        if s.try_start(c.theta, c.origin, c.cost):
+        if attempt(c, c.origin):
             return True
+    if resume():
+        return True
     # 2. the whole region
     if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
         found = s.candidates_from(s.scan(), o.spectral_candidates)
@@ -422,8 +468,10 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             if s.best is not None and _near(c.theta, s.best.theta):
                 continue
             tried += 1
-            if s.try_start(c.theta, "scan", c.cost):
+            if attempt(c, "scan"):
                 return True
+        if resume():
+            return True
     # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
     if o.global_search and o.pole_starts and spectral_ok and not out_of_time():
         poles = s.pole_candidates()

@@ -93,6 +93,15 @@ class StrategyOptions(BaseModel):
         description="fallback starts: low-pass stages before the full-band local fit, as fractions of the "
         "signal bandwidth (starts fitted in the frequency domain go straight to the full band)",
     )
+    trial_nfev: int | None = Field(15, ge=1, description="a start not fitted in the frequency domain (the "
+                                   "initial values as given) is first fitted in the time domain with at most this "
+                                   "many evaluations; one that has not converged by then waits behind the "
+                                   "frequency-domain starts and is resumed only if none of them is accepted "
+                                   "(null: fitted at once)")
+    spectral_trial_nfev: int | None = Field(60, ge=1, description="a start fitted in the frequency domain is "
+                                            "next to its minimum: one whose time-domain fit has not converged "
+                                            "within this many evaluations waits until the other starts of its "
+                                            "phase are tried, then goes on (null: fitted at once)")
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each local-fit stage")
     significance: float = Field(1e-3, gt=0, lt=1, description="p-value below which input-related structure "
                                                               "in the residual rejects a minimum")
