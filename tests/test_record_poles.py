@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from mbus_framework.estimation import global_search as gs
@@ -122,6 +122,7 @@ def test_a_ringing_chain_is_found_through_record_windows():
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.one_of(st.just(0.0), st.floats(1e-6, 20.0)), min_size=0, max_size=10), st.lists(st.floats(1e-3, np.pi), min_size=1, max_size=6),
        st.floats(-6.0, 2.0), st.floats(-0.5, 6.0))
+@example(omega_h=[11.0], phi=[np.pi], lnc_lo=0.0, span=2.0)  # phi = pi: crossings met from both sides
 def test_scale_candidates_are_every_alias_crossing_of_every_mode(omega_h, phi, lnc_lo, span):
     """The (vectorised) time scales c at which a model angle c omega_j h meets a measured angle
     +-phi_i modulo 2 pi: against a plain enumeration of c = (2 pi k +- phi_i) / (omega_j h),
@@ -141,7 +142,33 @@ def test_scale_candidates_are_every_alias_crossing_of_every_mode(omega_h, phi, l
                 for c in ((2 * np.pi * k + p) / w, (2 * np.pi * k - p) / w):
                     if c_lo <= c <= c_hi:
                         expected.add(c)
+    expected = np.array(sorted(expected))
+    if expected.size:  # one crossing reached two ways (phi = pi) counts once
+        expected = expected[np.r_[True, np.diff(expected) > 1e-12 * expected[1:]]]
     got = _scale_candidates(omega_h, phi, lnc_lo, lnc_hi)
-    np.testing.assert_allclose(got, np.log(sorted(expected)), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got, np.log(expected), rtol=0, atol=1e-12)
     if got.size:
         assert np.all(np.diff(got) > 0)
+
+
+def test_pole_candidates_with_an_estimated_delay_keep_it_and_warn_nothing():
+    """A delay (linear, lower bound 0) beside the log-scale stiffnesses: the pattern search works
+    in ln theta on the movable entries only, so a zero bound gives no numpy warning and the
+    delay comes back as the template's value."""
+    import warnings
+
+    from mbus_framework.estimation.nuisance import NuisanceSettings
+    from mbus_framework.estimation.problem import FitProblem
+
+    model, theta = ringing_chain(3.2e12, 30.0, 1.6e12, 5.0, L=0.03, n=10)
+    plain, _ = record(model, theta, 10, 2.5e-6, 6.25e6, 6200, 0.05, seed=3, state=5)
+    problem = FitProblem(model=model, t=plain.t, u=plain.u, y=plain.y, nuisance=NuisanceSettings(estimate_delay=True))
+    space = gs.search_space(problem)
+    template = np.array([p.typical for p in problem.parameters])
+    template[-1] = 0.0  # the delay at its lower bound
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        found = pole_candidates(problem, space, template, limit=3)
+    assert found
+    assert all(np.isfinite(c.theta).all() and c.theta[-1] == 0.0 for c in found)
+    assert min(np.max(np.abs(c.theta[[0, 2]] / theta[[0, 2]] - 1)) for c in found) < 0.01

@@ -134,7 +134,8 @@ def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_h
     c = c[(k <= k_hi[:, None])[None, :, :, None] & (c >= c_lo) & (c <= c_hi)]
     if c.size == 0:
         return np.empty(0)
-    return np.log(np.unique(c))
+    c = np.unique(c)  # phi = pi: alias k + phi and alias k + 1 - phi are one crossing, apart by rounding
+    return np.log(c[np.r_[True, np.diff(c) > 1e-12 * c[1:]]])
 
 
 def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
@@ -158,8 +159,15 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
         return []
     emax = e.max()
     stiff, soft = mv[e == emax], mv[e != emax]
-    llo, lhi = np.log(space.lo), np.log(space.hi)
-    base = np.log(np.clip(template, space.lo, space.hi))
+    fixed = np.clip(template, space.lo, space.hi)
+    with np.errstate(divide="ignore", invalid="ignore"):  # logs are used at movable (positive) entries only
+        llo, lhi, base = np.log(space.lo), np.log(space.hi), np.log(fixed)
+
+    def theta(lt: np.ndarray) -> np.ndarray:
+        th = fixed.copy()
+        th[mv] = np.exp(lt[mv])
+        return th
+
     base[soft] = llo[soft]  # the least damping: undamped frequencies
     # shape: the stiffness ratios (log differences from the first stiffness parameter)
     if stiff.size == 1:
@@ -182,7 +190,7 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
         lnc_hi = np.min((lhi[stiff] - lt[stiff]) / emax)
         if lnc_hi >= lnc_lo:
             rows.append((lt, lnc_lo, lnc_hi))
-    poles = _continuous_poles_batch(problem.model, np.exp(np.array([lt for lt, _, _ in rows])[:, : problem.n_model])
+    poles = _continuous_poles_batch(problem.model, np.array([theta(lt) for lt, _, _ in rows])[:, : problem.n_model]
                                     if rows else np.empty((0, problem.n_model)))
     found: list[Candidate] = []
     for (lt, lnc_lo, lnc_hi), s in zip(rows, poles):
@@ -194,7 +202,7 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
             continue
         cost = _angle_costs(omega_h, phi, lnc)
         j = int(np.argmin(cost))
-        th = np.exp(lt)
+        th = theta(lt)
         th[stiff] *= np.exp(emax * lnc[j])
         found.append(Candidate(th, float(cost[j]), "poles"))
     return distinct(found, rtol=0.02, limit=keep)
