@@ -169,7 +169,7 @@ def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.
 
 
 #: Scales scored in one pass of :func:`_best_scales` (memory O(BATCH (n + M))).
-BATCH = 65536
+BATCH = 4096
 
 
 def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarray]) -> list[tuple[int, float]]:
