@@ -138,8 +138,67 @@ def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_h
     return np.log(c[np.r_[True, np.diff(c) > 1e-12 * c[1:]]])
 
 
-def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
-    """sum_i min(min_j |fold(c omega_j h) - phi_i|, cap)^2 for every c = e^lnc."""
+def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.ndarray | None = None) -> np.ndarray:
+    """sum_i min(min_j |fold(c omega_j h) - phi_i|, cap)^2 for every c = e^lnc.
+
+    ``omega_h`` (n,) one pattern's mode angles per unit scale, or (R, n) several patterns
+    with ``row`` (C,) naming each scale's pattern (all patterns in one pass).
+
+    The nearest model angle to phi_i is the largest angle <= phi_i or the smallest >= phi_i:
+    with the model angles of each c sorted, the count of angles below each phi_i (one
+    bincount of their slots between the sorted phi) picks both neighbours, so the work is
+    O(C (n + M)) instead of O(C n M); the distances are the same floating-point numbers as
+    the direct minimum (|a - phi| = phi - a exactly, and rounding is monotone)."""
+    omega = np.atleast_2d(omega_h)
+    row = np.zeros(lnc.size, dtype=np.intp) if row is None else row
+    ang = np.sort(_fold(np.exp(lnc)[:, None] * omega[row]), axis=1)  # (C, n)
+    C, n = ang.shape
+    order = np.argsort(phi, kind="stable")
+    ps = phi[order]
+    M = ps.size
+    slot = np.searchsorted(ps, ang, side="left")  # number of phi below each angle, (C, n)
+    counts = np.bincount((np.arange(C)[:, None] * (M + 1) + slot).ravel(), minlength=C * (M + 1))
+    below = np.cumsum(counts.reshape(C, M + 1), axis=1)[:, :M]  # angles <= ps_i, (C, M)
+    rows = np.arange(C)[:, None]
+    lower = np.where(below > 0, ang[rows, np.maximum(below - 1, 0)], -np.inf)
+    upper = np.where(below < n, ang[rows, np.minimum(below, n - 1)], np.inf)
+    d_sorted = np.minimum(ps - lower, upper - ps)
+    d = np.empty_like(d_sorted)
+    d[:, order] = d_sorted  # back to the measured poles' order (the same sum as the direct form)
+    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
+
+
+#: Scales scored in one pass of :func:`_best_scales` (memory O(BATCH (n + M))).
+BATCH = 4096
+
+
+def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarray]) -> list[tuple[int, float]]:
+    """(index of the least cost, cost) per pattern: ``np.argmin`` of :func:`_angle_costs`
+    pattern by pattern, with the patterns of one mode count scored together."""
+    out: list[tuple[int, float] | None] = [None] * len(omegas)
+    groups: dict[int, list[int]] = {}
+    for k, w in enumerate(omegas):
+        groups.setdefault(w.size, []).append(k)
+    for members in groups.values():
+        start = 0
+        while start < len(members):
+            part, size = [], 0
+            while start < len(members) and (not part or size + lncs[members[start]].size <= BATCH):
+                part.append(members[start])
+                size += lncs[members[start]].size
+                start += 1
+            sizes = np.array([lncs[k].size for k in part])
+            row = np.repeat(np.arange(len(part)), sizes)
+            cost = _angle_costs(np.array([omegas[k] for k in part]), phi, np.concatenate([lncs[k] for k in part]), row)
+            first = np.r_[0, np.cumsum(sizes)[:-1]]
+            for k, a, b in zip(part, first, first + sizes):
+                j = int(np.argmin(cost[a:b]))
+                out[k] = (j, float(cost[a + j]))
+    return out
+
+
+def _angle_costs_direct(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
+    """:func:`_angle_costs` by the direct (C, M, n) minimum (the reference for tests)."""
     ang = _fold(np.exp(lnc)[:, None] * omega_h[None, :])  # (C, n)
     d = np.abs(ang[:, None, :] - phi[None, :, None]).min(axis=2)  # (C, M)
     return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
@@ -192,7 +251,7 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
             rows.append((lt, lnc_lo, lnc_hi))
     poles = _continuous_poles_batch(problem.model, np.array([theta(lt) for lt, _, _ in rows])[:, : problem.n_model]
                                     if rows else np.empty((0, problem.n_model)))
-    found: list[Candidate] = []
+    kept, omegas, lncs = [], [], []
     for (lt, lnc_lo, lnc_hi), s in zip(rows, poles):
         omega_h = np.abs(s.imag[s.imag > 0]) * h
         if omega_h.size == 0:
@@ -200,12 +259,34 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
         lnc = _scale_candidates(omega_h, phi, lnc_lo, lnc_hi)
         if lnc.size == 0:
             continue
-        cost = _angle_costs(omega_h, phi, lnc)
-        j = int(np.argmin(cost))
+        kept.append(lt)
+        omegas.append(omega_h)
+        lncs.append(lnc)
+    found: list[Candidate] = []
+    for lt, lnc, (j, cost) in zip(kept, lncs, _best_scales(omegas, phi, lncs)):
         th = theta(lt)
         th[stiff] *= np.exp(emax * lnc[j])
-        found.append(Candidate(th, float(cost[j]), "poles"))
+        found.append(Candidate(th, cost, "poles"))
     return distinct(found, rtol=0.02, limit=keep)
+
+
+#: Relative forward-difference step of the pole refinement's Jacobian.
+DIFF_STEP = 1e-7
+
+
+def _forward_steps(x: np.ndarray, rel_step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points x + h_i e_i (n, n) and the steps dx_i = (x_i + h_i) - x_i of a forward difference
+    with h_i = rel_step sign(x_i) |x_i| (sign(0) = 1; sqrt(eps) max(1, |x_i|) where that step
+    vanishes): the rule of ``scipy.optimize.least_squares(diff_step=rel_step)``, so the
+    Jacobian equals its ``'2-point'`` one while all n points are evaluated in one batch."""
+    x = np.asarray(x, float)
+    sign = np.where(x >= 0, 1.0, -1.0)
+    h = rel_step * sign * np.abs(x)
+    h = np.where((x + h) - x == 0, np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x)), h)
+    xs = np.repeat(x[None, :], x.size, axis=0)
+    idx = np.arange(x.size)
+    xs[idx, idx] = x + h
+    return xs, (x + h) - x
 
 
 def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200) -> Candidate:
@@ -227,8 +308,18 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         th[mv] = np.exp(np.clip(x, zlo, zhi))
         return th
 
+    last: list = [None, None]  # the last residual evaluated: (x, r), the Jacobian's base point
+
     def residual(x):
-        return capped(_continuous_poles(problem.model, theta_of(x)[:n_model]))
+        r = capped(_continuous_poles(problem.model, theta_of(x)[:n_model]))
+        last[:] = [np.array(x, copy=True), r]
+        return r
+
+    def jacobian(x):
+        f0 = last[1] if last[0] is not None and np.array_equal(last[0], x) else residual(x)
+        xs, dx = _forward_steps(x, DIFF_STEP)
+        poles = _continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in xs]))
+        return np.array([(capped(sp) - f0) / d for sp, d in zip(poles, dx)]).T
 
     # the pattern left every damping at its least value, where the pole radii barely move with
     # it: start from the best common position of the damping-like parameters in their range
@@ -241,7 +332,7 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         poles = _continuous_poles_batch(problem.model, np.array([theta_of(x)[:n_model] for x in xs]))
         costs = [float(np.sum(capped(sp) ** 2)) for sp in poles]
         x0 = xs[int(np.argmin(costs))]
-    res = least_squares(residual, x0, method="trf", diff_step=1e-7, max_nfev=max_nfev, x_scale=1.0)
+    res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
     th = theta.copy()
     th[mv] = np.exp(np.clip(res.x, zlo, zhi))
     return Candidate(th, float(2 * res.cost), "record poles")

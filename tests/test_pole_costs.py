@@ -1,0 +1,57 @@
+"""The record-pole search's fast arithmetic against direct references: the angle cost by
+neighbours against the (C, M, n) minimum, the batched best scale against ``np.argmin``
+pattern by pattern, and the batched forward-difference Jacobian against scipy's own."""
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize._numdiff import approx_derivative
+
+from mbus_framework.estimation.poles import ANGLE_CAP, _angle_costs, _best_scales, _fold, _forward_steps
+
+
+def direct_costs(omega_h, phi, lnc):
+    ang = _fold(np.exp(lnc)[:, None] * omega_h[None, :])
+    d = np.abs(ang[:, None, :] - phi[None, :, None]).min(axis=2)
+    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 14), m=st.integers(1, 13), c=st.integers(1, 300), seed=st.integers(0, 2**16),
+       ties=st.booleans(), edge=st.booleans())
+def test_angle_costs_equal_the_direct_minimum_exactly(n, m, c, seed, ties, edge):
+    rng = np.random.default_rng(seed)
+    omega_h = rng.uniform(0.0, 5.0, n)
+    phi = rng.uniform(0.0, np.pi, m)
+    if ties:  # repeated modes and repeated measured angles
+        omega_h[: n // 2] = omega_h[0]
+        phi[: m // 2] = phi[0]
+    if edge:  # a measured angle at pi and one on a model angle
+        phi[-1] = np.pi
+        phi[0] = _fold(np.array([omega_h[0]]))[0]
+    lnc = np.r_[0.0, rng.uniform(-3.0, 3.0, c)]
+    np.testing.assert_array_equal(_angle_costs(omega_h, phi, lnc), direct_costs(omega_h, phi, lnc))
+
+
+def test_best_scales_equal_argmin_pattern_by_pattern():
+    rng = np.random.default_rng(3)
+    phi = rng.uniform(0.0, np.pi, 9)
+    omegas = [rng.uniform(0.0, 4.0, rng.choice([4, 10])) for _ in range(40)]
+    lncs = [rng.uniform(-2.0, 2.0, rng.integers(1, 2000)) for _ in omegas]
+    lncs[5] = np.zeros(3)  # equal costs: the first index, as np.argmin
+    for (j, cost), w, lnc in zip(_best_scales(omegas, phi, lncs), omegas, lncs):
+        ref = direct_costs(w, phi, lnc)
+        assert j == int(np.argmin(ref)) and cost == ref[j]
+
+
+def test_forward_steps_give_scipys_two_point_jacobian():
+    def fun(x):
+        return np.array([np.sin(x[0]) * x[1], np.exp(0.3 * x[2]) - x[0] ** 2, x[1] * x[2] + x[3]])
+
+    for x in (np.array([0.3, -2.0, 1e-9, 5.0]), np.array([0.0, 1.0, -1e3, 2.5e7])):
+        xs, dx = _forward_steps(x, 1e-7)
+        f0 = fun(x)
+        J = np.array([(fun(xi) - f0) / d for xi, d in zip(xs, dx)]).T
+        ref = approx_derivative(fun, x, rel_step=1e-7, method="2-point", f0=f0)
+        np.testing.assert_array_equal(J, ref)
