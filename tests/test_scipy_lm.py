@@ -140,7 +140,7 @@ def test_finite_difference_jacobian_finds_the_same_minimum():
 
 def test_noise_free_data_are_fitted_exactly():
     """(Three starts: on noise-free data the default search never stops early, see
-    test_strategy.py::test_same_minimum_is_recognised_on_noise_free_data.)"""
+    test_strategy.py.)"""
     problem, truth = small_case()
     clean = FitProblem(problem.model, problem.t, problem.u, simulate(problem.model, truth, problem.u, problem.dt),
                        initial=truth * [0.5, 2.0, 2.0, 0.5])

@@ -397,15 +397,6 @@ def test_an_estimate_on_the_edge_of_the_region_widens_it():
     assert fit.cost <= cost_at(problem, truth) * (1 + 1e-6)
 
 
-def test_same_minimum_uses_a_round_off_floor():
-    from mbus_framework.estimation.strategy import _same_minimum
-
-    theta = np.array([1.0, 2.0])
-    a, b = LocalResult(theta, 1e-26, 1, 1, 1, "", 1), LocalResult(theta * (1 + 1e-12), 4e-26, 1, 1, 1, "", 1)
-    assert not _same_minimum(a, b)  # relative cost test alone fails on round-off costs
-    assert _same_minimum(a, b, floor=1e-20)
-
-
 def test_progress_is_reported():
     class Recorder(Progress):
         def __init__(self):

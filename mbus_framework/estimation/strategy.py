@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -62,8 +61,10 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
     time_exponents,
 )
 from mbus_framework.estimation.local import LocalResult
+from mbus_framework.estimation.minima import near, region_around
 from mbus_framework.estimation.poles import pole_candidates
 from mbus_framework.estimation.problem import FitProblem, Progress, SearchTimeout
+from mbus_framework.estimation.search_report import SearchReport, at_box_edge, stage_trace  # noqa: F401  (at_box_edge re-exported)
 from mbus_framework.estimation.spectral import record_spectrum
 from mbus_framework.estimation.strategy_options import (  # noqa: F401  (re-exported: the solvers' options)
     BUDGET_KEY, BUDGET_S, SearchClock, StrategyOptions)
@@ -71,32 +72,6 @@ from mbus_framework.estimation.strategy_options import (  # noqa: F401  (re-expo
 
 #: A local solver: (problem, start, band filter or None, max_nfev, final) -> LocalResult
 LocalFit = Callable[[FitProblem, np.ndarray, "BandFilter | None", int, bool], LocalResult]
-
-
-@dataclass
-class SearchReport:
-    """What the strategy tried and what won (written to result.json ``strategy``)."""
-
-    initial_source: str
-    initial: dict[str, float]
-    signal_bandwidth_hz: float | None = None
-    bands_hz: list[float] = field(default_factory=list)
-    starts: list[dict] = field(default_factory=list)
-    winner: int | None = None
-    accepted: bool = False
-    accepted_because: str = ""
-    verdict: dict | None = None
-    noise: dict | None = None
-    scan: dict | None = None
-    poles: dict | None = None
-    box: dict | None = None
-    widened: list[str] = field(default_factory=list)
-    wall_time_s: float = 0.0
-    cpu_time_s: float = 0.0  # CPU seconds of this process spent in the search (the budget's clock)
-    stopped_by_budget: str | None = None
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
 
 
 class _Search:
@@ -109,7 +84,7 @@ class _Search:
         self.space = gs.search_space(problem, options.material_ranges)
         lo, hi = self.space.lo.copy(), self.space.hi.copy()
         if problem.initial is not None and options.search_box:
-            lo, hi = _around(problem, np.asarray(problem.initial, float), options.search_box, lo, hi)
+            lo, hi = region_around(problem, np.asarray(problem.initial, float), options.search_box, lo, hi)
             self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
         self.problem = dataclasses.replace(problem, lower=lo, upper=hi, monitor=self.clock)
         self._hard = (problem.lower.astype(float), problem.upper.astype(float))
@@ -172,7 +147,7 @@ class _Search:
                 pass
             out += self.candidates_from([gs.align(p, sp, th, space, origin)], 1)
             for c in gs.distinct(out, rtol=0.02):
-                if not any(_near(c.theta, d.theta) for d in done):
+                if not any(near(c.theta, d.theta) for d in done):
                     done.append(c)
                     yield c
 
@@ -252,17 +227,17 @@ class _Search:
         for bf in self.filters if explore else []:
             res = self.local_fit(p, theta, bf, o.stage_max_nfev, False)
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
-            path += _stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
+            path += stage_trace(res, f"band {bf.cutoff_hz:.4g} Hz")
         for n, window in record_windows(p, windows):
             res = self.local_fit(window, theta, None, o.stage_max_nfev, False)
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
-            path += _stage_trace(res, f"first {n} samples")
+            path += stage_trace(res, f"first {n} samples")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
         precise = not explore and "(as given" not in origin
         budget = (10 if precise else 2) * o.stage_max_nfev
         res = self.local_fit(p, theta, None, min(budget, max_nfev or budget), precise)
         self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
-        res.trace = path + _stage_trace(res, "full band")
+        res.trace = path + stage_trace(res, "full band")
         verdict = self.judge(res)
         entry.update(end=dict(zip(self.names, map(float, res.theta))), cost=res.cost, verdict=verdict.as_dict(),
                      residual_autocorrelation=verdict.whiteness)
@@ -294,7 +269,7 @@ class _Search:
         """The ``fallback_anchors`` lowest-cost minima found, distinct (2 % in every parameter)."""
         out: list[np.ndarray] = []
         for res in sorted(self.minima, key=lambda r: r.cost):
-            if len(out) < self.options.fallback_anchors and not any(_near(res.theta, a) for a in out):
+            if len(out) < self.options.fallback_anchors and not any(near(res.theta, a) for a in out):
                 out.append(res.theta)
         return out
 
@@ -335,7 +310,7 @@ class _Search:
             again = self.local_fit(self.problem, final.theta, None, 10 * o.stage_max_nfev, True)
             self.nfev, self.njev = self.nfev + again.nfev, self.njev + again.njev
             if again.cost <= final.cost:
-                again.trace = final.trace + _stage_trace(again, "widened region")
+                again.trace = final.trace + stage_trace(again, "widened region")
                 final = again
         self.report.box = self._box_dict()
         return final
@@ -388,7 +363,7 @@ def search(
             if final.cost > best.cost:  # refinement never makes things worse
                 final = best
             else:
-                final.trace = best.trace + _stage_trace(final, "refinement")
+                final.trace = best.trace + stage_trace(final, "refinement")
             final = s.widen_if_on_edge(final)
     except SearchTimeout:
         s.report.stopped_by_budget = s.report.stopped_by_budget or clock.verdict(
@@ -465,7 +440,7 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
         for c in found:
             if tried >= o.n_starts or out_of_time():
                 break
-            if s.best is not None and _near(c.theta, s.best.theta):
+            if s.best is not None and near(c.theta, s.best.theta):
                 continue
             tried += 1
             if attempt(c, "scan"):
@@ -479,7 +454,7 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
         for c in poles:
             if out_of_time():
                 break
-            if s.best is not None and _near(c.theta, s.best.theta, 1e-3):
+            if s.best is not None and near(c.theta, s.best.theta, 1e-3):
                 continue
             if s.try_start(c.theta, "record poles", windows=o.pole_windows):
                 return True
@@ -496,48 +471,3 @@ def _evaluated(s: _Search, seeds: list[tuple[str, np.ndarray]]) -> LocalResult:
     cost = 0.5 * float(r @ r) if np.all(np.isfinite(r)) else np.inf
     return LocalResult(theta, cost, 1, 0, 0, "the time budget ran out before any local fit ended", 0,
                        [{"cost": cost, "theta": theta.tolist(), "stage": "start"}])
-
-
-def _around(problem: FitProblem, theta0: np.ndarray, factor: float, lo: np.ndarray, hi: np.ndarray):
-    """Bounds confining log-scale parameters to theta0 x/÷ factor (within lo, hi)."""
-    lo, hi = lo.copy(), hi.copy()
-    for i, p in enumerate(problem.parameters):
-        if p.log_scale and theta0[i] > 0:
-            lo[i] = max(lo[i], theta0[i] / factor)
-            hi[i] = min(hi[i], theta0[i] * factor)
-    return lo, hi
-
-
-def _near(a: np.ndarray, b: np.ndarray, rtol: float = 0.02) -> bool:
-    pos = (a > 0) & (b > 0)
-    return bool(np.all(np.abs(np.log(a[pos] / b[pos])) <= rtol))
-
-
-def at_box_edge(report: dict, theta: dict[str, float], rtol: float = 1e-3) -> list[str]:
-    """Names of parameters that ended on the edge of the search region."""
-    box = report.get("box") or {}
-    out = []
-    for name, value in theta.items():
-        lo, hi = box.get("lower", {}).get(name), box.get("upper", {}).get(name)
-        for edge in (lo, hi):
-            if edge not in (None, 0.0) and np.isfinite(edge) and abs(value - edge) <= rtol * abs(edge):
-                out.append(name)
-                break
-    return out
-
-
-def _stage_trace(res: LocalResult, stage: str) -> list[dict]:
-    """The Jacobian-evaluation records of one local solve, labelled with their stage.
-
-    Costs of band stages are those of the band-limited residual."""
-    return [dict(rec, stage=stage) for rec in res.trace]
-
-
-def _same_minimum(a: LocalResult, b: LocalResult, floor: float = 0.0, rtol: float = 1e-3) -> bool:
-    """Two local results are the same minimum when costs and parameters agree to ``rtol``.
-
-    ``floor`` is a cost below which differences are round-off (noise-free data)."""
-    if not (np.isfinite(a.cost) and np.isfinite(b.cost)):
-        return False
-    cost_ok = abs(a.cost - b.cost) <= rtol * max(a.cost, b.cost) + floor
-    return bool(cost_ok and np.allclose(a.theta, b.theta, rtol=10 * rtol, atol=0))
