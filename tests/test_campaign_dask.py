@@ -70,6 +70,8 @@ def test_a_campaign_runs_on_a_local_cluster_of_worker_processes(averaged_run, cl
     assert sorted(markers) == ["a", "b", "c"]
     workers = set(client.run(os.getpid).values())
     assert len(workers) == 2 and os.getpid() not in workers
+    # fits are sent to the workers ahead, not queued on the scheduler one round trip at a time
+    assert client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.WORKER_SATURATION) == float("inf")
     assert {m["worker"]["pid"] for m in markers.values()} <= workers  # fitted in the cluster's worker processes
     meta = json.loads((out / "campaign.json").read_text())
     assert meta["status"] == "finished" and meta["fitted"] == 3 and meta["failed"] == 0

@@ -2,7 +2,8 @@
 
 By default a :class:`distributed.LocalCluster` with one single-threaded worker *process* per
 core (the fits are numpy/scipy code that holds the GIL; threads would not run in parallel),
-one BLAS thread each, glibc's own malloc tuning (see :func:`_glibc_malloc_defaults`);
+one BLAS thread each, glibc's own malloc tuning (see :func:`_glibc_malloc_defaults`), fits sent
+to the workers ahead rather than queued on the scheduler (:func:`_fits_sent_ahead`);
 with a scheduler address the fits run on that existing cluster, which is left as it was (only
 our client disconnects). Each fit is one Dask task; a worker process imports mbus once and then
 runs any number of fits. Workers of an existing cluster need mbus installed (checked before the
@@ -87,7 +88,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
     cluster = None
     try:
         try:
-            with _glibc_malloc_defaults(), workers_ignore_sigint():  # Ctrl-C stops the client, which closes them
+            with _glibc_malloc_defaults(), _fits_sent_ahead(), workers_ignore_sigint():  # Ctrl-C stops the client
                 cluster = start_cluster(
                     LocalCluster,
                     n_workers=n,
@@ -126,6 +127,23 @@ def _glibc_malloc_defaults() -> Iterator[None]:
     key = "distributed.nanny.pre-spawn-environ"
     environ = {k: v for k, v in (dask.config.get(key, default={}) or {}).items() if k != "MALLOC_TRIM_THRESHOLD_"}
     with dask.config.set({key: environ}):
+        yield
+
+
+@contextmanager
+def _fits_sent_ahead() -> Iterator[None]:
+    """Start the LocalCluster's scheduler with ``distributed.scheduler.worker-saturation: inf``.
+
+    Dask's default (1.1) queues tasks on the scheduler and sends a worker its next one only when
+    one finishes, so each fit waits a scheduler round trip. A campaign's tasks are whole fits
+    (0.1 s to minutes, a small row back), so sending them ahead costs nothing, and work stealing
+    still balances the workers. Measured on 16 potato fits of 0.14 s, 2 workers over 1, four
+    alternating rounds: 1.48-1.83x (median 1.62x) with the default, 1.68-1.81x (median 1.77x)
+    with this.
+    """
+    import dask.config
+
+    with dask.config.set({"distributed.scheduler.worker-saturation": float("inf")}):
         yield
 
 
