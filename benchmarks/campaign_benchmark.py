@@ -28,7 +28,9 @@ run the benchmark measures, on the same records:
     1-worker LocalCluster's (target: ratio at most 1.15);
 (e) before and after the rounds, the machine's own 2-process speed-up (the same pure CPU loop
     alone and in two processes at once): the ceiling of (a)'s speed-up on this machine, since
-    two vCPUs need not be two independent cores;
+    two vCPUs need not be two independent cores; and the fit's own: the CPU per fit with both
+    workers busy over that with one (CPU time counts only time on a core, so a fit that takes
+    more of it while the other worker runs shares a core's resources), 2 / that ratio;
 
 and reports the per-fit overhead of (a) with 1 worker, wall/N - mean t_fit, against that of
 (c), mean process wall - mean t_fit, in wall seconds and in CPU seconds (the workers' CPU time
@@ -272,6 +274,10 @@ def main(argv=None) -> int:
         "minor_faults_per_fit": {"nanny": nanny["median_worker_minor_faults_per_fit"],
                                  "local_cluster": one["median_worker_minor_faults_per_fit"]},
     }
+    # CPU seconds count only time on a core: when a fit takes more CPU with both workers busy, the
+    # two vCPUs share a core's resources (SMT, cache, memory bandwidth) and 2 / slowdown is the
+    # most two workers can give for this work on this machine, whatever the scheduling.
+    slowdown = two["median_worker_cpu_s_per_fit"] / one["median_worker_cpu_s_per_fit"]
     speedup = two["best_fits_per_s"] / one["best_fits_per_s"]
     median_speedup = two["median_fits_per_s"] / one["median_fits_per_s"]
     campaign_speedup = two["best_campaign_fits_per_s"] / one["best_campaign_fits_per_s"]
@@ -292,6 +298,9 @@ def main(argv=None) -> int:
         "nanny_cluster": {"1_worker": nanny},
         "nanny_over_local_cpu_per_fit": nanny_vs_local,
         "speedup_2_over_1": {"best": speedup, "median": median_speedup, "whole_campaign_best": campaign_speedup},
+        "fit_cpu_slowdown_2_workers": {"ratio": slowdown, "ceiling": 2 / slowdown,
+                                       "per_round": [b["worker_cpu_s_per_fit"] / a["worker_cpu_s_per_fit"]
+                                                     for a, b in zip(one["rounds"], two["rounds"])]},
         "machine_2_process_speedup": {"before": ceiling_before, "after": ceiling_after,
                                       "median": float(np.median(ceiling_before["speedup_per_trial"]
                                                                 + ceiling_after["speedup_per_trial"]))},
@@ -315,6 +324,8 @@ def main(argv=None) -> int:
     ceiling = doc["machine_2_process_speedup"]["median"]
     print(f"the machine's own 2-process speed-up (a pure CPU loop, alone vs two at once; before and after): "
           f"{ceiling:.2f}x, so the campaign reaches {speedup / ceiling:.0%} of what this machine allows")
+    print(f"CPU per fit with 2 workers busy: {slowdown:.2f}x that with 1 (median), so this work allows at most "
+          f"{2 / slowdown:.2f}x on this machine during the run")
     print(f"per record, wall (best round): warm process {fit:.3f} s; campaign (1 worker) {one['best_wall_s_per_fit']:.3f} s "
           f"(overhead {overhead['wall_s']['campaign_1_worker']:+.3f} s); one mbus-run process {np.mean(proc_wall):.3f} s "
           f"(overhead {overhead['wall_s']['process_per_record']:+.3f} s)")
