@@ -56,6 +56,7 @@ def test_response_matches_python_control(mat, dt):
 
 @settings(max_examples=12, deadline=None)
 @given(materials, st.sampled_from([None, 4e-8]))
+@example((1e8, 10.0, 1e6, 805829.0, 2), None)  # the shear column at 4e-8 of the peak (a fresh-clone run)
 def test_jacobian_matches_central_differences(mat, dt):
     Es, es, Et, et, n = mat
     model = kv(n)
@@ -66,7 +67,10 @@ def test_jacobian_matches_central_differences(mat, dt):
     # round-off on columns far below the response (small steps): the exact column must match
     # them at one of five steps, to 1e-4 of the column's scale, on the lines a record can hold
     # (response within 120 dB of its peak; below that both are round-off) of media that transmit
-    # something measurable (a peak transmission of 1e-6 of the input at least).
+    # something measurable (a peak transmission of 1e-6 of the input at least). Where a column
+    # barely moves the response (a heavily damped shear link), both are compared to the peak: to
+    # 1e-7 of it per unit relative change of the parameter, as the response itself is compared to
+    # the ZOH reference above.
     assume(np.max(np.abs(H)) >= 1e-6)
     seen = np.abs(H) >= 1e-6 * np.max(np.abs(H))
     for i in range(theta.size):
@@ -79,7 +83,7 @@ def test_jacobian_matches_central_differences(mat, dt):
             fd = (response(model, up, f, dt) - response(model, dn, f, dt)) / (2 * h)
             errors.append(np.max(np.abs(J[seen, i] - fd[seen])))
             scale = max(scale, np.max(np.abs(fd[seen])))
-        assert min(errors) <= 1e-4 * (scale + 1e-9 * np.max(np.abs(H)) / theta[i])
+        assert min(errors) <= 1e-4 * scale + 1e-7 * np.max(np.abs(H)) / theta[i]
 
 
 def test_jacobian_of_a_model_with_internal_states():
