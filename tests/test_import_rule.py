@@ -23,7 +23,8 @@ POTATO = ROOT / "configs" / "potato.yaml"
 # Never in a single run: campaigns, Dask, the analyses' libraries.
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
 # Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
-UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer")
+UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils",
+          "numpy.polynomial.polynomial")
 # Not needed by a simulated fit with the LM solver: CasADi (the collocation solver), python-control
 # (state-space export), the studies and the analyses.
 OTHER_TOOLS = ("casadi", "control", "mbus_framework.studies", "mbus_framework.analysis")
@@ -89,6 +90,25 @@ def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
     status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--no-plots"])
     assert status == 0 and (tmp_path / "run" / "result.json").is_file()
     assert _loaded(modules, (*NEVER, "matplotlib", *UNUSED)) == []
+
+
+def test_deferred_numpy_submodules_are_the_real_modules_when_used():
+    """numpy.testing and numpy.polynomial, made lazy at start-up, are not run by scipy's
+    ``from numpy import *`` and work as soon as something uses them."""
+    code = """
+import json, sys
+from mbus_framework.startup import defer_unused_numpy
+deferred = defer_unused_numpy()
+import scipy.linalg, scipy.optimize
+before = [m for m in ("numpy.testing._private.utils", "numpy.polynomial.polynomial") if m in sys.modules]
+import numpy as np
+from numpy.testing import assert_allclose
+assert_allclose(np.polynomial.Polynomial([1, 2])(3.0), 7.0)
+ok = {"numpy.testing", "numpy.polynomial"} <= set(deferred) and "numpy.polynomial.polynomial" in sys.modules
+print("\\n@@MODULES@@" + json.dumps([int(not ok), before]))
+"""
+    status, before = _modules([], code)
+    assert status == 0 and before == set()
 
 
 def test_deferred_f2py_is_the_real_module_when_used():
