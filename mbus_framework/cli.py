@@ -187,21 +187,18 @@ def _main(args: argparse.Namespace) -> int:
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
         _prestart(args)
-        if _is_campaign_file(args.config):
+        kind = _special_kind(args.config)
+        if kind == "campaign":
             from mbus_framework.campaigns.cli import run_from_cli
             from mbus_framework.pipeline import figure_workers
 
             figure_workers.discard()  # the campaign's fits run (and plot) in Dask's workers
             return run_from_cli(args)
-        from mbus_framework.substitution.config import is_substitution_file
-
-        if is_substitution_file(args.config):
+        if kind == "substitution":
             from mbus_framework.substitution.command import run_from_cli as run_substitution
 
             return run_substitution(args)
-        from mbus_framework.joint.config import is_joint_file
-
-        if is_joint_file(args.config):
+        if kind == "joint":
             from mbus_framework.joint.files import run_joint_config
 
             joint = run_joint_config(args.config, args.overrides, args.out, overwrite=args.overwrite)
@@ -254,21 +251,23 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
     return False
 
 
-def _is_campaign_file(path: str) -> bool:
-    """True for a YAML mapping with a top-level ``campaign:`` key (as
-    :func:`mbus_framework.campaigns.spec.is_campaign_file`, checked here so that a single run does
-    not import the campaign package and Dask)."""
-    from pathlib import Path
+def _special_kind(path: str) -> str | None:
+    """``campaign``, ``substitution`` or ``joint`` for those config files (a YAML mapping with a
+    top-level ``campaign:`` or ``joint:`` section, or ``experiment: substitution``), else None;
+    checked here from the YAML alone, as :func:`mbus_framework.campaigns.spec.is_campaign_file`,
+    :func:`mbus_framework.substitution.config.is_substitution_file` and
+    :func:`mbus_framework.joint.config.is_joint_file` do, so that a single run imports none of
+    those packages (nor Dask)."""
+    from mbus_framework.pipeline.config import config_mapping_or_none
 
-    from mbus_framework.pipeline.config import read_yaml
-
-    p = Path(path)
-    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
-        return False
-    try:
-        return "campaign" in read_yaml(p)
-    except ConfigError:
-        return False
+    data = config_mapping_or_none(path)
+    if data is None:
+        return None
+    if "campaign" in data:
+        return "campaign"
+    if data.get("experiment") == "substitution":
+        return "substitution"
+    return "joint" if "joint" in data else None
 
 
 def _internal_error(exc: Exception) -> int:
