@@ -71,10 +71,12 @@ class MbusPluginManager(pluggy.PluginManager):
     def load_entry_points(self, group: str = PROJECT, lazy: bool = True) -> None:
         """Register the plugins of the entry-point ``group``; with ``lazy``, those whose names are
         declared (:func:`declared_names`) are only noted in :attr:`deferred`."""
+        distributions: dict[int, str] = {}  # id(distribution) -> "name version"
         for ep in _entry_points(group):
             dist = getattr(ep, "dist", None)
-            source = f"{dist.name} {dist.version}" if dist is not None else "(unknown distribution)"
-            source = one_line(f"{source} [{ep.value}]", 120)  # shown in listings and one-line errors
+            if id(dist) not in distributions:
+                distributions[id(dist)] = _distribution(dist)
+            source = one_line(f"{distributions[id(dist)]} [{ep.value}]", 120)  # shown in listings and one-line errors
             if self.has_plugin(ep.name) or self.is_blocked(ep.name) or ep.name in self.deferred:
                 continue
             names = declared_names(ep) if lazy else None
@@ -96,6 +98,15 @@ class MbusPluginManager(pluggy.PluginManager):
             self.broken.append(BrokenPlugin(ep.name, source, one_line_error(exc)))
             return
         self.register_plugin(plugin, ep.name, source)
+
+
+def _distribution(dist: metadata.Distribution | None) -> str:
+    """``name version`` of ``dist``: its metadata parsed once (``dist.name`` and ``dist.version``
+    parse the whole METADATA file each, about 1.5 ms a time)."""
+    if dist is None:
+        return "(unknown distribution)"
+    meta = dist.metadata
+    return f"{meta['Name']} {meta['Version']}"
 
 
 def declared_names(ep: metadata.EntryPoint) -> dict[str, tuple[str, ...]] | None:
