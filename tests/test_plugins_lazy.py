@@ -156,3 +156,14 @@ def test_an_unusable_declaration_means_an_eager_import(acme_lazy, table):
     reg = Registry.from_manager(new_plugin_manager())
     assert "acme_lazy.models" in sys.modules
     assert "acme_kv" in reg.loaded["model"]
+
+
+def test_two_registries_of_one_manager_each_load_what_they_are_asked(acme_lazy):
+    pm = new_plugin_manager()
+    first, second = Registry.from_manager(pm), Registry.from_manager(pm)
+    assert first.get("model", "acme_kv") == second.get("model", "acme_kv")
+    for reg in (first, second):  # the second finds the failure the first one's import recorded
+        with pytest.raises(PluginError, match="acme: no licence"):
+            reg.get("model", "acme_x")
+    third = Registry.from_manager(pm)  # built after: the loaded plugin is simply registered
+    assert "acme_kv" in third.loaded["model"] and third.names("model") == first.names("model")

@@ -81,14 +81,14 @@ class Registry:
         if not providers or self.manager is None:
             return
         pm = self.manager
-        before = len(pm.broken)
         fresh = []
         for plugin_name in providers:
-            pm.load_deferred(plugin_name)
+            pm.load_deferred(plugin_name)  # a no-op when another registry of this manager loaded it
             plugin = pm.get_plugin(plugin_name)
             if plugin is not None:
                 fresh.append(plugin)
-        self.broken += pm.broken[before:]
+            else:
+                self.broken += [b for b in pm.broken if b.name == plugin_name and b not in self.broken]
         for plugin_name in providers:  # their other declared names come with them
             for key in [k for k, v in self.deferred.items() if plugin_name in v]:
                 self.deferred[key].remove(plugin_name)
