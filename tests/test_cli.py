@@ -242,10 +242,10 @@ def test_an_interrupted_import_is_an_interruption_not_a_bug(tmp_path, capsys, mo
         except KeyboardInterrupt as exc:
             raise ImportError("initialization failed") from exc
 
-    monkeypatch.setattr(cli, "_is_campaign_file", interrupted_import)
+    monkeypatch.setattr(cli, "_special_kind", interrupted_import)
     code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
     assert (code, err.strip()) == (130, "mbus-run: interrupted")
-    monkeypatch.setattr(cli, "_is_campaign_file", lambda path: 1 / 0)  # a real bug is still one
+    monkeypatch.setattr(cli, "_special_kind", lambda path: 1 / 0)  # a real bug is still one
     code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
     assert code == 70 and "internal error: ZeroDivisionError" in err
 

@@ -23,10 +23,12 @@ POTATO = ROOT / "configs" / "potato.yaml"
 # Never in a single run: campaigns, Dask, the analyses' libraries.
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
 # Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
-UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer")
+UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils",
+          "numpy.polynomial.polynomial")
 # Not needed by a simulated fit with the LM solver: CasADi (the collocation solver), python-control
 # (state-space export), the studies and the analyses.
-OTHER_TOOLS = ("casadi", "control", "mbus_framework.studies", "mbus_framework.analysis")
+OTHER_TOOLS = ("casadi", "control", "mbus_framework.studies", "mbus_framework.analysis", "mbus_framework.joint",
+               "mbus_framework.substitution")
 # --help and --version: nothing numerical at all.
 HEAVY = (*NEVER, "scipy.stats", "numpy", "scipy", "matplotlib", "pydantic", "mbus_framework.estimation.problem")
 # --list-plugins imports each plugin module (their classes carry the summaries), but not what a
@@ -91,6 +93,25 @@ def test_single_run_without_plots_does_not_import_matplotlib(tmp_path):
     assert _loaded(modules, (*NEVER, "matplotlib", *UNUSED)) == []
 
 
+def test_deferred_numpy_submodules_are_the_real_modules_when_used():
+    """numpy.testing and numpy.polynomial, made lazy at start-up, are not run by scipy's
+    ``from numpy import *`` and work as soon as something uses them."""
+    code = """
+import json, sys
+from mbus_framework.startup import defer_unused_numpy
+deferred = defer_unused_numpy()
+import scipy.linalg, scipy.optimize
+before = [m for m in ("numpy.testing._private.utils", "numpy.polynomial.polynomial") if m in sys.modules]
+import numpy as np
+from numpy.testing import assert_allclose
+assert_allclose(np.polynomial.Polynomial([1, 2])(3.0), 7.0)
+ok = {"numpy.testing", "numpy.polynomial"} <= set(deferred) and "numpy.polynomial.polynomial" in sys.modules
+print("\\n@@MODULES@@" + json.dumps([int(not ok), before]))
+"""
+    status, before = _modules([], code)
+    assert status == 0 and before == set()
+
+
 def test_deferred_f2py_is_the_real_module_when_used():
     """numpy.f2py, made lazy at start-up (mbus_framework.startup), is not run by scipy's
     ``from numpy import *`` but works as soon as something uses it."""
@@ -124,26 +145,26 @@ print("\\n@@MODULES@@" + json.dumps([int(not result.success), sorted(sys.modules
     assert _loaded(modules, (*NEVER, "matplotlib")) == []
 
 
-def test_campaign_files_are_still_recognised(tmp_path):
-    """The command line's own check agrees with the campaign package's."""
+def test_special_config_files_are_still_recognised(tmp_path):
+    """The command line's own check agrees with the campaign, substitution and joint packages'."""
     from mbus_framework.campaigns.spec import is_campaign_file
-    from mbus_framework.cli import _is_campaign_file
+    from mbus_framework.cli import _special_kind
+    from mbus_framework.joint.config import is_joint_file
+    from mbus_framework.substitution.config import is_substitution_file
 
-    campaign = tmp_path / "c.yaml"
-    campaign.write_text("campaign:\n  base: base.yaml\n")
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("campaign: [\n")
-    for path in (campaign, bad, POTATO, tmp_path / "missing.yaml", ROOT / "pyproject.toml"):
-        assert _is_campaign_file(str(path)) == is_campaign_file(path), path
-    assert _is_campaign_file(str(campaign))
-
-
-def test_the_figure_helpers_need_no_scipy():
-    """The figure helper is forked right after numpy loads and imports only what drawing needs:
-    the figures module (and report.html's helpers) load no scipy, no pydantic and not the simulation engine."""
-    code = ("import json, sys\n"
-            "import mbus_framework.pipeline.figures, mbus_framework.pipeline.html\n"
-            "print('\\n@@MODULES@@' + json.dumps([0, sorted(sys.modules)]))\n")
-    status, modules = _modules([], code=code)
-    assert status == 0 and "mbus_framework.pipeline.figures" in modules
-    assert _loaded(modules, ("scipy", "pydantic", "mbus_framework.engine.simulation", "matplotlib.pyplot")) == []
+    files = {"campaign": "campaign:\n  base: base.yaml\n", "substitution": "experiment: substitution\n",
+             "joint": "joint:\n  records: []\n", "other_experiment": "experiment: other\njoint: {}\n",
+             "bad": "campaign: [\n", "list": "- campaign\n"}
+    paths = [POTATO, tmp_path / "missing.yaml", ROOT / "pyproject.toml"]
+    for name, text in files.items():
+        (tmp_path / f"{name}.yaml").write_text(text)
+        paths.append(tmp_path / f"{name}.yaml")
+    for path in paths:
+        kind = _special_kind(str(path))
+        assert (kind == "campaign") == is_campaign_file(path), path
+        if kind != "campaign":
+            assert (kind == "substitution") == is_substitution_file(path), path
+            if kind != "substitution":
+                assert (kind == "joint") == is_joint_file(path), path
+    assert [_special_kind(str(tmp_path / f"{n}.yaml")) for n in ("campaign", "substitution", "joint", "other_experiment")] \
+        == ["campaign", "substitution", "joint", "joint"]

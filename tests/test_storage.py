@@ -136,3 +136,20 @@ def test_npz_round_trip_through_the_file_backend(tmp_path):
     m = read_record(tmp_path / "rec.npz")
     np.testing.assert_array_equal(m.u, u)
     np.testing.assert_array_equal(m.y, y)
+
+
+@pytest.mark.parametrize("dtype", [float, np.float32, np.int64])
+def test_waveform_csv_is_the_text_of_numpy_savetxt(tmp_path, dtype):
+    """write_waveforms formats in one operation; the text is np.savetxt's, special values included."""
+    import io
+
+    rng = np.random.default_rng(3)
+    t, u, y = np.arange(500) * 4e-8, rng.normal(size=500) * 1e3, rng.normal(size=500) * 1e-9
+    if dtype is float:
+        u[[1, 2, 3]] = [np.nan, np.inf, -np.inf]
+        y[[4, 5, 6]] = [-0.0, 5e-324, 1.7976931348623157e308]
+    data = [np.asarray(a * (1e9 if dtype is np.int64 else 1)).astype(dtype) for a in (t, u, y)]
+    expected = io.StringIO()
+    np.savetxt(expected, np.column_stack(data), delimiter=",", header="t,u,y", comments="", fmt="%.17g")
+    write_waveforms(tmp_path / "m.csv", *data)
+    assert (tmp_path / "m.csv").read_text() == expected.getvalue()

@@ -104,11 +104,9 @@ def atomic_write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
 def write_waveforms(path: str | os.PathLike, t, u, y) -> Path:
     """Save a record as CSV with header ``t,u,y`` (the format the ``file`` backend reads)."""
     data = np.column_stack([t, u, y])
-    import io
-
-    buf = io.StringIO()
-    np.savetxt(buf, data, delimiter=",", header="t,u,y", comments="", fmt="%.17g")
-    return atomic_write_text(path, buf.getvalue())
+    # the text of np.savetxt(fmt="%.17g", delimiter=","), formatted in one operation (half its time)
+    rows = ("%.17g,%.17g,%.17g\n" * len(data)) % tuple(data.ravel().tolist())
+    return atomic_write_text(path, "t,u,y\n" + rows)
 
 
 def to_jsonable(obj: Any) -> Any:
