@@ -53,6 +53,14 @@ piezo's element links (k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2
 g33 = 24.8e-3 V m/N. With stiff, light layers (and no backing) the record is
 e33 g33 times the sample's own (force in at its first node, force out into a rigid wall).
 
+Options ``drive: faces`` and ``receiver_mount: backing`` (the shipped uncompensated potato
+campaign uses both): the field's stress in the transmitter's piezo as +F on its front node and
+-F on its back node (Mason's 1-D model), and a receiver that is an identical transducer, its
+piezo's back node tied to the casing by the same backing dashpot Z_B A instead of resting on a
+wall. The receiver's voltage follows its piezo's thickness change u(t_p) - u(0); clamped at the
+back and pushed at the face, u(x) ~ sin(k x), which vanishes at k t_p = pi: a rigidly mounted
+half-wave receiver is deaf at f_0 = c / (2 t_p).
+
 Everything is one continuous state space (z = [x, x', q], built by
 :func:`mbus_framework.engine.chain.assemble_chain` with the input and output rows above),
 simulated exactly like the sample alone.
