@@ -45,10 +45,12 @@ def options(**over) -> dict:
             "transmit_constant": E33, "receive_constant": G33, "centre_frequency": F0, **over}
 
 
-def reference_record(u: np.ndarray, dt: float) -> np.ndarray:
+def reference_record(u: np.ndarray, dt: float, drive: str = "back_face", mount: str = "rigid") -> np.ndarray:
     """Independent reference: M x'' + C x' + K x = f written out node by node from the physical
     description (layers, slice, backing, mount), discretised by scipy.signal.cont2discrete (ZOH)
-    and run by scipy.signal.dlsim."""
+    and run by scipy.signal.dlsim. ``drive``: force on the transmitter piezo's back node, or +F
+    on its front node and -F on its back node; ``mount``: the receiver piezo ends on a rigid wall,
+    or on a node of its own tied to the casing by the backing dashpot Z_B A."""
     A_face = np.pi * 0.0254**2 / 4
     w0 = 2 * np.pi * F0
 
@@ -64,7 +66,7 @@ def reference_record(u: np.ndarray, dt: float) -> np.ndarray:
     k_s = PROPS["E_sigma"] * A_face * n / SAMPLE.length
     b_s = PROPS["eta_sigma"] * A_face * n / SAMPLE.length
     k_t, b_t = PROPS["E_tau"] * np.pi * 0.0254, PROPS["eta_tau"] * np.pi * 0.0254
-    nodes = len(tx) + n + len(rx)
+    nodes = len(tx) + n + len(rx) + (1 if mount == "backing" else 0)
     mass = np.zeros(nodes)
     springs = []  # (node i, node j or None for the mount, k, b)
     for e, (m, k, b) in enumerate(tx):
@@ -93,10 +95,17 @@ def reference_record(u: np.ndarray, dt: float) -> np.ndarray:
         K[i, i] += k_t
         C[i, i] += b_t
     C[0, 0] += Z_B * A_face  # the transmitter's backing
+    if mount == "backing":
+        C[-1, -1] += Z_B * A_face  # the receiver's backing
     Minv = np.diag(1 / mass)
     A = np.block([[np.zeros((nodes, nodes)), np.eye(nodes)], [-Minv @ K, -Minv @ C]])
     B = np.zeros((2 * nodes, 1))
-    B[nodes, 0] = E33 * A_face / PIEZO["thickness"] / mass[0]
+    force = E33 * A_face / PIEZO["thickness"]
+    if drive == "faces":
+        front = PIEZO["n_elements"]
+        B[nodes, 0], B[nodes + front, 0] = -force / mass[0], force / mass[front]
+    else:
+        B[nodes, 0] = force / mass[0]
     out = np.zeros((1, 2 * nodes))
     piezo = springs[-PIEZO["n_elements"]:]
     for i, j, k, b in piezo:  # V = g33 t / A * mean force in the receiver's piezo
@@ -118,9 +127,11 @@ def acquire(registry, waveform, transducers, noise=0.0):
     return backend, backend.acquire(AcquisitionContext(waveform, SAMPLE, model(), registry))
 
 
-def test_composite_record_matches_an_independent_state_space_reference(registry, waveform):
-    backend, m = acquire(registry, waveform, options())
-    ref = reference_record(waveform.u, waveform.dt)
+@pytest.mark.parametrize("drive, mount", [("back_face", "rigid"), ("faces", "rigid"), ("back_face", "backing"),
+                                          ("faces", "backing")])
+def test_composite_record_matches_an_independent_state_space_reference(registry, waveform, drive, mount):
+    backend, m = acquire(registry, waveform, options(drive=drive, receiver_mount=mount))
+    ref = reference_record(waveform.u, waveform.dt, drive, mount)
     peak = np.max(np.abs(ref))
     assert peak > 1e-3  # a real record, not two zeros agreeing
     np.testing.assert_allclose(m.y, ref, rtol=0, atol=1e-7 * peak)
@@ -159,6 +170,35 @@ def test_face_to_face_response_and_describe():
     assert 0 < lo < hi
 
 
+@pytest.mark.parametrize("drive", ["back_face", "faces"])
+def test_a_rigidly_mounted_half_wave_receiver_is_deaf_at_its_centre_frequency(drive):
+    """Receiver voltage ~ thickness change u(t_p) - u(0) of the piezo. Clamped at its back and
+    driven at its face, u(x) ~ sin(k x): zero change at k t_p = pi, the half-wave frequency
+    c / (2 t_p) = 0.5 MHz. On its own backing (an identical transducer) it is not."""
+    f = np.linspace(0.02e6, 1.0e6, 99)
+    at = np.argmin(np.abs(f - PIEZO["sound_speed"] / (2 * PIEZO["thickness"])))
+    for mount, low, high in (("rigid", 0.0, 0.03), ("backing", 0.5, 1.0)):
+        o = options(plates=[], piezo={**PIEZO, "n_elements": 10}, drive=drive, receiver_mount=mount)
+        h = np.abs(MechanicalTransducerPair(MechanicalTransducerOptions(**o)).response(f))
+        assert low <= h[at] / h.max() <= high, (mount, h[at] / h.max())
+
+
+def test_shipped_uncompensated_pair_has_the_documented_a301s_band():
+    """configs/campaigns/potatoes_uncompensated.yaml: two identical backed transducers with a
+    water-matched quarter-wave layer, driven by the piezo's own stress: the face-to-face -6 dB band
+    lies within the A301S's documented 0.3-0.7 MHz (Sections 3.4.4, 5.4) and spans most of it."""
+    import yaml
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "configs/campaigns/potatoes_uncompensated.yaml"
+    spec = yaml.safe_load(path.read_text())["campaign"]["run"]["backend"]["options"]["transducers"]
+    pair = MechanicalTransducerPair(MechanicalTransducerOptions(**spec))
+    lo, hi = pair.band()
+    assert 0.27e6 < lo < 0.35e6 and 0.55e6 < hi < 0.75e6
+    rigid = MechanicalTransducerPair(MechanicalTransducerOptions(**{**spec, "receiver_mount": "rigid"}))
+    assert rigid.band()[1] < 0.3e6  # the same pair on a rigid mount rings below the band
+
+
 def test_defaults_are_the_documented_rig():
     o = MechanicalTransducerOptions(kind="mechanical")
     assert o.piezo.thickness == pytest.approx(o.piezo.sound_speed / (2 * 0.5e6))  # half-wave at 0.5 MHz
@@ -174,6 +214,8 @@ def test_defaults_are_the_documented_rig():
         ({"kind": "mechanical", "plates": [{"thickness": 0.05, "density": 1190, "sound_speed": 2750}]},
          "backend.options.transducers: plates.0.n_elements"),
         ({"kind": "mechanical", "backing_impedance": -1}, "backend.options.transducers: backing_impedance"),
+        ({"kind": "mechanical", "drive": "both"}, "backend.options.transducers: drive"),
+        ({"kind": "mechanical", "receiver_mount": "wall"}, "backend.options.transducers: receiver_mount"),
         ({"kind": "piezo"}, "backend.options.transducers: kind: 'piezo' is not a transducer kind"),
         ({"kind": "filter", "order": 9}, "backend.options.transducers.order"),
         ({"centre_frequncy": 1e6}, "did you mean 'centre_frequency'"),

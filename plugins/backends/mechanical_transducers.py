@@ -53,6 +53,14 @@ piezo's element links (k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2
 g33 = 24.8e-3 V m/N. With stiff, light layers (and no backing) the record is
 e33 g33 times the sample's own (force in at its first node, force out into a rigid wall).
 
+Options ``drive: faces`` and ``receiver_mount: backing`` (the shipped uncompensated potato
+campaign uses both): the field's stress in the transmitter's piezo as +F on its front node and
+-F on its back node (Mason's 1-D model), and a receiver that is an identical transducer, its
+piezo's back node tied to the casing by the same backing dashpot Z_B A instead of resting on a
+wall. The receiver's voltage follows its piezo's thickness change u(t_p) - u(0); clamped at the
+back and pushed at the face, u(x) ~ sin(k x), which vanishes at k t_p = pi: a rigidly mounted
+half-wave receiver is deaf at f_0 = c / (2 t_p).
+
 Everything is one continuous state space (z = [x, x', q], built by
 :func:`mbus_framework.engine.chain.assemble_chain` with the input and output rows above),
 simulated exactly like the sample alone.
@@ -106,6 +114,11 @@ class MechanicalTransducerOptions(BaseModel):
     backing_impedance: float = Field(1.0e7, gt=0, le=1e20, description="backing acoustic impedance Z_B [Pa s/m]")
     transmit_constant: float = Field(15.8, gt=0, description="piezo e33 [C/m^2]: F = e33 A / t_p V")
     receive_constant: float = Field(24.8e-3, gt=0, description="piezo g33 [V m/N]: V = g33 t_p <F> / A")
+    drive: Literal["back_face", "faces"] = Field("back_face", description="back_face: F on the transmitter piezo's "
+                                                 "back node; faces: +F on its front node and -F on its back node")
+    receiver_mount: Literal["rigid", "backing"] = Field("rigid", description="rigid: the receiver piezo's back face "
+                                                        "on a rigid wall; backing: on a dashpot Z_B A like the "
+                                                        "transmitter's (two identical transducers)")
 
     @model_validator(mode="after")
     def _thin_elements(self):
@@ -230,7 +243,9 @@ class TransducedChain:
         # transmitter's last element ends on the receiver's face node. Normal link j joins node j
         # and j + 1; the last (the receiver piezo's back element) ends on the rigid mount.
         nt = len(tx)
-        masses = [0.0] * nt + s_masses + [0.0] * len(rx)
+        backed = pair.options.receiver_mount == "backing"
+        extra = 1 if backed else 0  # the receiver piezo's back node (on its backing, not on a wall)
+        masses = [0.0] * nt + s_masses + [0.0] * (len(rx) + extra)
         for e, el in enumerate(tx):  # element e joins node e and node e + 1
             masses[e] += el.mass / 2
             masses[e + 1] += el.mass / 2
@@ -241,16 +256,25 @@ class TransducedChain:
                 masses[off + r + 1] += el.mass / 2
         normal = [el.link for el in tx] + s_normal + [el.link for el in rx]
         shear = [LinkMatrices(b=pair.backing)] + [None] * (nt - 1) + s_shear + [None] * len(rx)
+        if backed:  # the back node rests on the backing dashpot only: no link to the wall
+            normal.append(LinkMatrices(k=0.0, b=0.0))
+            shear.append(LinkMatrices(b=pair.backing))
         A, B, C, D = assemble_chain(masses, normal, shear, np.zeros(1))
         A = np.asarray(A, dtype=float)
         nn = len(masses)
-        # Input: F = e33 A / t_p V on the transmitter's back node.
+        # Input: F = e33 A / t_p V on the transmitter's back node, or +F on the piezo's front
+        # node and -F on its back node (the piezo's own stress, Mason's 1-D model).
         B = np.zeros((A.shape[0], 1))
-        B[nn, 0] = pair.transmit_gain / masses[0]
+        if pair.options.drive == "faces":
+            B[nn, 0] = -pair.transmit_gain / masses[0]
+            B[nn + pair.n_piezo, 0] = pair.transmit_gain / masses[pair.n_piezo]
+        else:
+            B[nn, 0] = pair.transmit_gain / masses[0]
         # Output: g33 t_p / A times the mean force over the receiver piezo's element links.
         C = np.zeros((1, A.shape[0]))
         w = pair.receive_gain / pair.n_piezo
-        for j in range(nn - pair.n_piezo, nn):
+        last = nn - extra  # one past the receiver piezo's last element link
+        for j in range(last - pair.n_piezo, last):
             lm = normal[j]
             C[0, j] += w * lm.k
             C[0, nn + j] += w * lm.b
