@@ -41,8 +41,11 @@ def model() -> KelvinVoigtChain:
 
 
 def options(**over) -> dict:
+    """A small test pair; back-face drive into a rigid mount unless ``over`` says otherwise (the
+    configuration whose limits are simplest to state)."""
     return {"kind": "mechanical", "piezo": PIEZO, "plates": [PLATE], "backing_impedance": Z_B,
-            "transmit_constant": E33, "receive_constant": G33, "centre_frequency": F0, **over}
+            "transmit_constant": E33, "receive_constant": G33, "centre_frequency": F0,
+            "drive": "back_face", "receiver_mount": "rigid", **over}
 
 
 def reference_record(u: np.ndarray, dt: float, drive: str = "back_face", mount: str = "rigid") -> np.ndarray:
@@ -202,7 +205,13 @@ def test_shipped_uncompensated_pair_has_the_documented_a301s_band():
 def test_defaults_are_the_documented_rig():
     o = MechanicalTransducerOptions(kind="mechanical")
     assert o.piezo.thickness == pytest.approx(o.piezo.sound_speed / (2 * 0.5e6))  # half-wave at 0.5 MHz
-    assert o.plates[0].thickness == pytest.approx(6e-3) and o.diameter == pytest.approx(0.0254)
+    layer = o.plates[0]  # quarter-wave layer matched between the piezo and water (1.48 MRayl)
+    assert layer.thickness == pytest.approx(layer.sound_speed / (4 * 0.5e6))
+    z_piezo = o.piezo.density * o.piezo.sound_speed
+    assert layer.density * layer.sound_speed == pytest.approx((z_piezo * 1.48e6) ** 0.5, rel=0.01)
+    assert o.backing_impedance == pytest.approx(z_piezo, rel=0.01) and o.diameter == pytest.approx(0.0254)
+    lo, hi = MechanicalTransducerPair(o).band()  # the A301S's documented 0.3-0.7 MHz (Sections 3.4.4, 5.4)
+    assert 0.27e6 < lo < 0.35e6 and 0.55e6 < hi < 0.75e6
 
 
 @pytest.mark.parametrize(

@@ -25,41 +25,44 @@ and shear links (the fitted model's truth); the transmitter's face node is the s
 node (its face plate's half element mass is added there) and the sample's last normal link
 ends on the receiver's face node instead of the rigid receiver wall.
 
-Defaults (from the dissertation's rig, Sections 3.4.3 and 6.2.2, and handbook materials):
+Defaults (an A301S-like immersion pair from the dissertation's rig, Sections 3.4.3, 3.4.4, 5.4
+and 6.2.2, and handbook materials; the shipped configs/campaigns/potatoes_uncompensated.yaml states
+them):
 
 * piezo: PZT-5A, rho = 7750 kg/m^3, c = 4350 m/s, a half-wave plate at f_0 = 0.5 MHz
   (t = c / (2 f_0) = 4.35 mm), delta = 1/Q_m = 1/75; 10 elements.
-* plates: the 0.6 cm acrylic (PMMA) holding plate of Sections 3.4.3 and 6.2.2 in the wave
-  path over the element face: rho = 1190 kg/m^3, c = 2750 m/s, delta = 0.016 (attenuation
-  about 1.6 dB/cm at 1 MHz, alpha c / (pi f) at 0.5 MHz); 22 elements (t = 1.1 wavelengths).
-  Its area outside the column (8 cm square) is not modelled (1-D model of Section 3.2).
-* backing: a dashpot b_B = Z_B A to the stationary casing behind the transmitter's piezo,
-  Z_B = 10 MRayl (a tungsten-loaded epoxy backing of a broadband transducer).
+* plates: one quarter-wave layer matched to water, Z_m = sqrt(Z_p Z_w) = 7.07 MRayl,
+  c = 3000 m/s (alumina-filled epoxy), rho = Z_m / c, t = c / (4 f_0) = 1.5 mm, delta = 0.02;
+  8 elements. The 0.6 cm acrylic holding plate of Section 6.2.2 is fastened to the casing beside
+  the face ("full contact with the sample"), so it is not in the column; give it as a plate to
+  put it there.
+* backing: a dashpot b_B = Z_B A to the stationary casing behind each piezo, Z_B = rho c of
+  the piezo = 33.7 MRayl (fully damped, broadband).
+* drive ``faces`` and receiver_mount ``backing`` (below): two identical transducers. Their
+  face-to-face -6 dB band is 0.31-0.59 MHz against the A301S's documented 0.3-0.7 MHz
+  (tested).
 
 Elements shorter than a twentieth of a wavelength at f_0 keep the lumped layers' cut-off
-(2 c n / (2 pi t), 3.2 MHz for the piezo, 3.2 MHz for the plate) well above the band; the
-options reject elements longer than a quarter wavelength.
+(2 c n / (2 pi t): 3.2 MHz for the piezo, 5.1 MHz for the matching layer) well above the band;
+the options reject elements longer than a quarter wavelength.
 
 Transduction
 ------------
 As in the sample's own chain, a force enters at one end and the force at the other end is
-read. The generator voltage V drives the transmitter's piezo, whose back face pushes on the
-chain with F = e33 (A / t_p) V [N] (e33 [C/m^2]; the reaction goes into the casing) while its
-backing absorbs what runs backwards (a dashpot b_B = Z_B A from that node to the stationary
-casing). One transducer was mounted statically on the chamber (Section 3.4.3); here the
-receiver: its piezo's back face rests on the rigid mount (the chain's wall), and its open-circuit voltage follows the
-mean stress in the piezo, V_o = g33 t_p <F> / A [V] (g33 [V m/N]), <F> the mean force over the
-piezo's element links (k_e delta_x + b_e delta_v each). PZT-5A: e33 = 15.8 C/m^2,
-g33 = 24.8e-3 V m/N. With stiff, light layers (and no backing) the record is
-e33 g33 times the sample's own (force in at its first node, force out into a rigid wall).
-
-Options ``drive: faces`` and ``receiver_mount: backing`` (the shipped uncompensated potato
-campaign uses both): the field's stress in the transmitter's piezo as +F on its front node and
--F on its back node (Mason's 1-D model), and a receiver that is an identical transducer, its
-piezo's back node tied to the casing by the same backing dashpot Z_B A instead of resting on a
-wall. The receiver's voltage follows its piezo's thickness change u(t_p) - u(0); clamped at the
-back and pushed at the face, u(x) ~ sin(k x), which vanishes at k t_p = pi: a rigidly mounted
-half-wave receiver is deaf at f_0 = c / (2 t_p).
+read. The generator voltage V sets F = e33 (A / t_p) V [N] in the transmitter's piezo
+(e33 [C/m^2]); ``drive: faces`` (default) applies the field's stress as +F on the piezo's front
+node and -F on its back node (Mason's 1-D model), ``drive: back_face`` as F on its back node
+alone (the reaction into the casing). A backing dashpot b_B = Z_B A ties the back node to the
+stationary casing and absorbs what runs backwards. ``receiver_mount: backing`` (default): the
+receiver is an identical transducer on its own backing; ``rigid``: its piezo's back face rests
+on a rigid mount (the chain's wall; one transducer was mounted statically on the chamber,
+Section 3.4.3). The receiver's open-circuit voltage follows the mean stress in its piezo,
+V_o = g33 t_p <F> / A [V] (g33 [V m/N]), <F> the mean force over the piezo's element links
+(k_e delta_x + b_e delta_v each), i.e. its thickness change u(t_p) - u(0). PZT-5A: e33 = 15.8
+C/m^2, g33 = 24.8e-3 V m/N. With stiff, light layers, back-face drive, a rigid mount and no
+backing, the record is e33 g33 times the sample's own (force in at its first node, force out
+into a rigid wall). Clamped at the back and pushed at the face, u(x) ~ sin(k x), which vanishes
+at k t_p = pi: a rigidly mounted half-wave receiver is deaf at f_0 = c / (2 t_p) (tested).
 
 Everything is one continuous state space (z = [x, x', q], built by
 :func:`mbus_framework.engine.chain.assemble_chain` with the input and output rows above),
@@ -95,9 +98,9 @@ def _pzt5a() -> Layer:
                  sound_speed=4350.0, loss_factor=1 / 75, n_elements=10)
 
 
-def _acrylic_plate() -> list[Layer]:
-    return [Layer(name="acrylic holding plate (0.6 cm)", thickness=6e-3, density=1190.0, sound_speed=2750.0,
-                  loss_factor=0.016, n_elements=22)]
+def _matching_layer() -> list[Layer]:
+    return [Layer(name="quarter-wave matching layer", thickness=1.5e-3, density=2357.0, sound_speed=3000.0,
+                  loss_factor=0.02, n_elements=8)]
 
 
 class MechanicalTransducerOptions(BaseModel):
@@ -105,18 +108,18 @@ class MechanicalTransducerOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     kind: Literal["mechanical"]
-    name: str = Field("virtual A301S pair with acrylic plates (mechanical)", description="identity of the pair")
+    name: str = Field("virtual A301S pair, matched and backed (mechanical)", description="identity of the pair")
     diameter: float = Field(0.0254, gt=0, le=0.5, description="element diameter D [m] (A301S: 25.4 mm)")
     centre_frequency: float = Field(0.5e6, ge=1e3, le=1e9, description="f_0 where loss factors apply [Hz]")
     piezo: Layer = Field(default_factory=_pzt5a, description="the active element (closest to the backing)")
-    plates: list[Layer] = Field(default_factory=_acrylic_plate, description="layers between piezo and sample, "
+    plates: list[Layer] = Field(default_factory=_matching_layer, description="layers between piezo and sample, "
                                 "piezo side first")
-    backing_impedance: float = Field(1.0e7, gt=0, le=1e20, description="backing acoustic impedance Z_B [Pa s/m]")
+    backing_impedance: float = Field(3.37e7, gt=0, le=1e20, description="backing acoustic impedance Z_B [Pa s/m]")
     transmit_constant: float = Field(15.8, gt=0, description="piezo e33 [C/m^2]: F = e33 A / t_p V")
     receive_constant: float = Field(24.8e-3, gt=0, description="piezo g33 [V m/N]: V = g33 t_p <F> / A")
-    drive: Literal["back_face", "faces"] = Field("back_face", description="back_face: F on the transmitter piezo's "
+    drive: Literal["back_face", "faces"] = Field("faces", description="back_face: F on the transmitter piezo's "
                                                  "back node; faces: +F on its front node and -F on its back node")
-    receiver_mount: Literal["rigid", "backing"] = Field("rigid", description="rigid: the receiver piezo's back face "
+    receiver_mount: Literal["rigid", "backing"] = Field("backing", description="rigid: the receiver piezo's back face "
                                                         "on a rigid wall; backing: on a dashpot Z_B A like the "
                                                         "transmitter's (two identical transducers)")
 
