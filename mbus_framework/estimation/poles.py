@@ -330,9 +330,32 @@ def _forward_steps(x: np.ndarray, rel_step: float) -> tuple[np.ndarray, np.ndarr
     return xs, (x + h) - x
 
 
-def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200) -> Candidate:
+#: Evaluations over which a pole refinement's rate of progress is measured (:func:`refine_on_poles`).
+PROGRESS_WINDOW = 20
+
+
+class _CannotWin(Exception):
+    """A pole refinement stopped: at its recent rate it cannot get below the cost to beat."""
+
+
+def _cannot_win(best: list[float], max_nfev: int, beat: float, window: int = PROGRESS_WINDOW) -> bool:
+    """True when the best cost so far (``best[k]`` after evaluation k), lowered for every
+    evaluation left at its mean rate over the last ``window`` evaluations, stays above ``beat``:
+
+        best_k - (best_{k-W} - best_k) / W * (max_nfev - k) > beat."""
+    k = len(best) - 1
+    if k < window or not np.isfinite(beat):
+        return False
+    rate = (best[k - window] - best[k]) / window
+    return best[k] - rate * max(max_nfev - k, 0) > beat
+
+
+def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200,
+                    beat: float = np.inf) -> Candidate:
     """Least squares in ln theta (movable entries) on the capped distances of the measured
-    poles z to their nearest model poles."""
+    poles z to their nearest model poles. ``beat``: the cost this refinement must get below to
+    be kept (:func:`pole_candidates`); a refinement that cannot at its recent rate of progress
+    (:func:`_cannot_win`) stops early with its best point so far."""
     mv = np.flatnonzero(space.movable)
     h, n_model = problem.dt, problem.n_model
     theta = np.clip(np.asarray(theta, float), space.lo, space.hi)
@@ -350,10 +373,18 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         return th
 
     last: list = [None, None]  # the last residual evaluated: (x, r), the Jacobian's base point
+    best: list[float] = []  # the least cost after each evaluation
+    best_x: list = [None]
 
     def residual(x):
         r = capped(_continuous_poles(problem.model, theta_of(x)[:n_model]))
         last[:] = [np.array(x, copy=True), r]
+        cost = float(r @ r)
+        if not best or cost < best[-1]:
+            best_x[0] = last[0]
+        best.append(min(cost, best[-1]) if best else cost)
+        if _cannot_win(best, max_nfev, beat):
+            raise _CannotWin
         return r
 
     def jacobian(x):
@@ -373,10 +404,14 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         poles = _continuous_poles_batch(problem.model, np.array([theta_of(x)[:n_model] for x in xs]))
         costs = [float(np.sum(capped(sp) ** 2)) for sp in poles]
         x0 = xs[int(np.argmin(costs))]
-    res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
+    try:
+        res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
+        x, cost = res.x, float(2 * res.cost)
+    except _CannotWin:
+        x, cost = best_x[0], best[-1]
     th = theta.copy()
-    th[mv] = np.exp(np.clip(res.x, zlo, zhi))
-    return Candidate(th, float(2 * res.cost), "record poles")
+    th[mv] = np.exp(np.clip(x, zlo, zhi))
+    return Candidate(th, cost, "record poles")
 
 
 def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: int = 3,
@@ -395,8 +430,10 @@ def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: in
         return []
     out = []
     for pattern in pattern_search(problem, space, z, template, seed=seed, keep=2 * limit):
+        kept = distinct(out, rtol=0.01, limit=limit)
+        beat = kept[-1].cost if len(kept) == limit else np.inf  # what a new refinement must get below
         try:
-            out.append(refine_on_poles(problem, space, z, pattern.theta))
+            out.append(refine_on_poles(problem, space, z, pattern.theta, beat=beat))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     return distinct(out, rtol=0.01, limit=limit)
