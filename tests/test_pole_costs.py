@@ -55,3 +55,23 @@ def test_forward_steps_give_scipys_two_point_jacobian():
         J = np.array([(fun(xi) - f0) / d for xi, d in zip(xs, dx)]).T
         ref = approx_derivative(fun, x, rel_step=1e-7, method="2-point", f0=f0)
         np.testing.assert_array_equal(J, ref)
+
+
+def test_scale_candidates_batch_equal_the_single_pattern_ones_exactly():
+    """Every pattern's alias crossings from the batched enumeration are the same numbers as
+    :func:`_scale_candidates` of that pattern alone (mode counts mixed, empty patterns, phi = pi,
+    ranges without crossings, batches smaller than a group)."""
+    from mbus_framework.estimation.poles import _scale_candidates, _scale_candidates_batch
+
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        R, M = int(rng.integers(1, 30)), int(rng.integers(1, 10))
+        phi = np.sort(rng.uniform(0.0, np.pi, M))
+        if trial % 4 == 0:
+            phi[-1] = np.pi
+        omegas = [np.exp(rng.uniform(-6.0, 1.0, int(rng.integers(0, 5)))) for _ in range(R)]
+        lo = rng.uniform(-3.0, 1.0, R)
+        hi = lo + rng.uniform(0.0, 5.0, R)
+        got = _scale_candidates_batch(omegas, phi, lo, hi, rows=int(rng.integers(1, 8)))
+        for w, a, b, g in zip(omegas, lo, hi, got):
+            np.testing.assert_array_equal(g, _scale_candidates(w, phi, a, b))

@@ -172,3 +172,44 @@ def test_pole_candidates_with_an_estimated_delay_keep_it_and_warn_nothing():
     assert found
     assert all(np.isfinite(c.theta).all() and c.theta[-1] == 0.0 for c in found)
     assert min(np.max(np.abs(c.theta[[0, 2]] / theta[[0, 2]] - 1)) for c in found) < 0.01
+
+
+def test_cannot_win_extrapolates_the_recent_rate_to_the_budget():
+    """best_k - (best_{k-W} - best_k) / W (max_nfev - k) > beat, checked by hand."""
+    from mbus_framework.estimation.poles import _cannot_win
+
+    flat = [1.0] * 10 + [0.5] * 21  # k = 30, no progress over the last 20 evaluations
+    assert _cannot_win(flat, 200, 0.4, window=20)
+    assert not _cannot_win(flat, 200, 0.6, window=20)  # already below: it may win
+    assert not _cannot_win(flat[:20], 200, 0.4, window=20)  # fewer evaluations than the window
+    assert not _cannot_win(flat, 200, np.inf, window=20)  # nothing to beat yet
+    slope = [1.0 - 0.001 * k for k in range(31)]  # 0.001 per evaluation: 0.97 - 0.17 = 0.80 at the end
+    assert _cannot_win(slope, 200, 0.79, window=20)
+    assert not _cannot_win(slope, 200, 0.81, window=20)
+
+
+def test_pole_candidates_with_early_stops_equal_every_refinement_run_in_full(monkeypatch):
+    """The refinements that cannot get below the kept candidates stop early (here one does);
+    the candidates kept are the same as when every pattern is refined to its own end."""
+    from mbus_framework.estimation import poles
+
+    model, theta = ringing_chain(3e11, 50.0, 2e11, 30.0, L=0.02, n=6)
+    problem, _ = record(model, theta, 10, 2.5e-6, 6.25e6, 6200, 0.05, seed=2, state=9)
+    space = gs.search_space(problem)
+    template = np.array([p.typical for p in problem.parameters])
+    z = record_poles(problem.u, problem.y, problem.model.n_states)
+    patterns = poles.pattern_search(problem, space, z, template, keep=6)
+    full = gs.distinct([poles.refine_on_poles(problem, space, z, p.theta) for p in patterns], rtol=0.01, limit=3)
+    stops = []
+    original = poles._cannot_win
+
+    def counted(*args, **kwargs):
+        stops.append(original(*args, **kwargs))
+        return stops[-1]
+
+    monkeypatch.setattr(poles, "_cannot_win", counted)
+    found = pole_candidates(problem, space, template, limit=3)
+    assert any(stops)
+    assert [c.cost for c in found] == [c.cost for c in full]
+    for a, b in zip(found, full):
+        np.testing.assert_array_equal(a.theta, b.theta)

@@ -43,6 +43,7 @@ class Candidate:
     cost: float
     origin: str
     amplitude: float = 1.0  # best output scale factor found with the amplitude left free
+    as_given: bool = False  # the user's initial values as given (short trial, no full-precision solve)
 
 
 @dataclass

@@ -138,6 +138,49 @@ def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_h
     return np.log(c[np.r_[True, np.diff(c) > 1e-12 * c[1:]]])
 
 
+def _scale_candidates_batch(omegas: list[np.ndarray], phi: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                            rows: int = 128) -> list[np.ndarray]:
+    """:func:`_scale_candidates` of every pattern (``omegas[r]`` its mode angles per unit scale,
+    ``lo[r]``, ``hi[r]`` its ln c range), the same numbers, with the patterns of one mode count
+    done together (``rows`` at a time): one (2, rows, modes, aliases, measured) array, one
+    sort by (pattern, c) and the same duplicate rule within each pattern."""
+    out: list[np.ndarray] = [np.empty(0)] * len(omegas)
+    pos = [w[w > 0] for w in omegas]
+    groups: dict[int, list[int]] = {}
+    for r, w in enumerate(pos):
+        if w.size:
+            groups.setdefault(w.size, []).append(r)
+    for members in groups.values():
+        for a in range(0, len(members), rows):
+            idx = np.array(members[a : a + rows])
+            w = np.array([pos[r] for r in idx])  # (R, n)
+            c_lo, c_hi = np.exp(np.asarray(lo, float)[idx])[:, None], np.exp(np.asarray(hi, float)[idx])[:, None]
+            k_lo, k_hi = np.floor(c_lo * w / (2 * np.pi)), np.floor(c_hi * w / (2 * np.pi)) + 1
+            keep = k_hi - k_lo <= 64
+            if not keep.any():
+                continue
+            k = k_lo[:, :, None] + np.arange(int((k_hi - k_lo)[keep].max()) + 1)  # (R, n, aliases)
+            two_pi_k, wj = (2 * np.pi * k)[..., None], w[:, :, None, None]
+            with np.errstate(over="ignore"):
+                c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, R, n, aliases, M)
+            valid = ((k <= k_hi[:, :, None]) & keep[:, :, None])[None, ..., None]
+            valid = valid & (c >= c_lo[None, :, :, None, None]) & (c <= c_hi[None, :, :, None, None])
+            row = np.broadcast_to(np.arange(idx.size)[None, :, None, None, None], c.shape)[valid]
+            c = c[valid]
+            if c.size == 0:
+                continue
+            order = np.lexsort((c, row))
+            c, row = c[order], row[order]
+            first = np.r_[True, row[1:] != row[:-1]]
+            new = first | np.r_[True, np.diff(c) > 1e-12 * c[1:]]  # exact repeats fail the test too
+            c, row = c[new], row[new]
+            bounds = np.searchsorted(row, np.arange(idx.size + 1))
+            for j, r in enumerate(idx):
+                if bounds[j + 1] > bounds[j]:
+                    out[r] = np.log(c[bounds[j] : bounds[j + 1]])
+    return out
+
+
 def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.ndarray | None = None) -> np.ndarray:
     """sum_i min(min_j |fold(c omega_j h) - phi_i|, cap)^2 for every c = e^lnc.
 
@@ -251,13 +294,11 @@ def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndar
             rows.append((lt, lnc_lo, lnc_hi))
     poles = _continuous_poles_batch(problem.model, np.array([theta(lt) for lt, _, _ in rows])[:, : problem.n_model]
                                     if rows else np.empty((0, problem.n_model)))
+    all_omegas = [np.abs(s.imag[s.imag > 0]) * h for s in poles]
+    all_lncs = _scale_candidates_batch(all_omegas, phi, np.array([r[1] for r in rows]), np.array([r[2] for r in rows]))
     kept, omegas, lncs = [], [], []
-    for (lt, lnc_lo, lnc_hi), s in zip(rows, poles):
-        omega_h = np.abs(s.imag[s.imag > 0]) * h
-        if omega_h.size == 0:
-            continue
-        lnc = _scale_candidates(omega_h, phi, lnc_lo, lnc_hi)
-        if lnc.size == 0:
+    for (lt, _, _), omega_h, lnc in zip(rows, all_omegas, all_lncs):
+        if omega_h.size == 0 or lnc.size == 0:
             continue
         kept.append(lt)
         omegas.append(omega_h)
@@ -289,9 +330,32 @@ def _forward_steps(x: np.ndarray, rel_step: float) -> tuple[np.ndarray, np.ndarr
     return xs, (x + h) - x
 
 
-def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200) -> Candidate:
+#: Evaluations over which a pole refinement's rate of progress is measured (:func:`refine_on_poles`).
+PROGRESS_WINDOW = 20
+
+
+class _CannotWin(Exception):
+    """A pole refinement stopped: at its recent rate it cannot get below the cost to beat."""
+
+
+def _cannot_win(best: list[float], max_nfev: int, beat: float, window: int = PROGRESS_WINDOW) -> bool:
+    """True when the best cost so far (``best[k]`` after evaluation k), lowered for every
+    evaluation left at its mean rate over the last ``window`` evaluations, stays above ``beat``:
+
+        best_k - (best_{k-W} - best_k) / W * (max_nfev - k) > beat."""
+    k = len(best) - 1
+    if k < window or not np.isfinite(beat):
+        return False
+    rate = (best[k - window] - best[k]) / window
+    return best[k] - rate * max(max_nfev - k, 0) > beat
+
+
+def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200,
+                    beat: float = np.inf) -> Candidate:
     """Least squares in ln theta (movable entries) on the capped distances of the measured
-    poles z to their nearest model poles."""
+    poles z to their nearest model poles. ``beat``: the cost this refinement must get below to
+    be kept (:func:`pole_candidates`); a refinement that cannot at its recent rate of progress
+    (:func:`_cannot_win`) stops early with its best point so far."""
     mv = np.flatnonzero(space.movable)
     h, n_model = problem.dt, problem.n_model
     theta = np.clip(np.asarray(theta, float), space.lo, space.hi)
@@ -309,10 +373,18 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         return th
 
     last: list = [None, None]  # the last residual evaluated: (x, r), the Jacobian's base point
+    best: list[float] = []  # the least cost after each evaluation
+    best_x: list = [None]
 
     def residual(x):
         r = capped(_continuous_poles(problem.model, theta_of(x)[:n_model]))
         last[:] = [np.array(x, copy=True), r]
+        cost = float(r @ r)
+        if not best or cost < best[-1]:
+            best_x[0] = last[0]
+        best.append(min(cost, best[-1]) if best else cost)
+        if _cannot_win(best, max_nfev, beat):
+            raise _CannotWin
         return r
 
     def jacobian(x):
@@ -332,10 +404,14 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         poles = _continuous_poles_batch(problem.model, np.array([theta_of(x)[:n_model] for x in xs]))
         costs = [float(np.sum(capped(sp) ** 2)) for sp in poles]
         x0 = xs[int(np.argmin(costs))]
-    res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
+    try:
+        res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
+        x, cost = res.x, float(2 * res.cost)
+    except _CannotWin:
+        x, cost = best_x[0], best[-1]
     th = theta.copy()
-    th[mv] = np.exp(np.clip(res.x, zlo, zhi))
-    return Candidate(th, float(2 * res.cost), "record poles")
+    th[mv] = np.exp(np.clip(x, zlo, zhi))
+    return Candidate(th, cost, "record poles")
 
 
 def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: int = 3,
@@ -354,8 +430,10 @@ def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: in
         return []
     out = []
     for pattern in pattern_search(problem, space, z, template, seed=seed, keep=2 * limit):
+        kept = distinct(out, rtol=0.01, limit=limit)
+        beat = kept[-1].cost if len(kept) == limit else np.inf  # what a new refinement must get below
         try:
-            out.append(refine_on_poles(problem, space, z, pattern.theta))
+            out.append(refine_on_poles(problem, space, z, pattern.theta, beat=beat))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue
     return distinct(out, rtol=0.01, limit=limit)

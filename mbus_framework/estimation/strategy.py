@@ -192,11 +192,13 @@ class _Search:
 
     def try_start(self, theta: np.ndarray, origin: str, spectral_cost: float | None = None,
                   explore: bool = False, windows: int = 0, max_nfev: int | None = None,
-                  trial: bool = False) -> bool:
+                  trial: bool = False, as_given: bool = False) -> bool:
         """One time-domain local fit (band stages or ``windows`` record windows, then the full
         record); True when accepted. ``max_nfev`` bounds the full-band fit; with ``trial`` a fit
         that runs out of it before converging is a short trial (:attr:`stopped_short` then holds
-        its end and the rest of the start's budget, and it is not counted a minimum). A start the
+        its end and the rest of the start's budget, and it is not counted a minimum). ``as_given``
+        marks the user's values as given (not next to a minimum: no full-precision solve);
+        ``origin`` is the report's label only. A start the
         time budget stops is recorded as stopped and the :class:`SearchTimeout` passed on."""
         entry: dict = {"index": len(self.report.starts), "origin": origin,
                        "start": dict(zip(self.names, map(float, theta)))}
@@ -205,15 +207,15 @@ class _Search:
         before = self.clock.evaluations
         self.stopped_short = None
         try:
-            return self._fit_start(theta, origin, entry, explore, windows, max_nfev, trial)
+            return self._fit_start(theta, entry, explore, windows, max_nfev, trial, as_given)
         except SearchTimeout:
             entry.update(stopped="time budget ran out", evaluations=self.clock.evaluations - before)
             self.nfev += self.clock.evaluations - before  # the abandoned fit's model evaluations
             self.report.starts.append(entry)
             raise
 
-    def _fit_start(self, theta: np.ndarray, origin: str, entry: dict, explore: bool, windows: int,
-                   max_nfev: int | None = None, trial: bool = False) -> bool:
+    def _fit_start(self, theta: np.ndarray, entry: dict, explore: bool, windows: int,
+                   max_nfev: int | None = None, trial: bool = False, as_given: bool = False) -> bool:
         o, p = self.options, self.problem
         if explore:
             if o.time_scale:
@@ -233,7 +235,7 @@ class _Search:
             self.nfev, self.njev, theta = self.nfev + res.nfev, self.njev + res.njev, res.theta
             path += stage_trace(res, f"first {n} samples")
         # a start fitted in the frequency domain is next to its minimum: solve to full precision
-        precise = not explore and "(as given" not in origin
+        precise = not explore and not as_given
         budget = (10 if precise else 2) * o.stage_max_nfev
         res = self.local_fit(p, theta, None, min(budget, max_nfev or budget), precise)
         self.nfev, self.njev = self.nfev + res.nfev, self.njev + res.njev
@@ -386,7 +388,7 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
     out_of_time = s.clock.out_of_time
     spectral_ok = s.space.movable.any()
     # 1. the physics-based starts, fitted in the frequency domain first
-    given = [gs.Candidate(th, np.nan, "config (as given)") for origin, th in seeds if origin == "config"]
+    given = [gs.Candidate(th, np.nan, "config (as given)", as_given=True) for origin, th in seeds if origin == "config"]
     raw = [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
 
     def queue():  # lazily: the spectral fits of the seeds only when the start as given is not accepted
@@ -402,27 +404,26 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             yield from raw
 
     tried = 0
-    waiting: list[tuple[str, LocalResult, int]] = []  # short trials that did not converge
+    waiting: list[tuple[str, bool, LocalResult, int]] = []  # short trials that did not converge
 
     def attempt(c: gs.Candidate, origin: str) -> bool:
         """One start with a short trial: the start as given ``trial_nfev``, a frequency-domain
         candidate ``spectral_trial_nfev`` evaluations (it should be next to its minimum); one
         that has not converged by then waits until its phase's other starts are tried."""
-        as_given = origin.endswith("(as given)")
-        bound = o.trial_nfev if as_given else o.spectral_trial_nfev
-        bound = bound if (spectral_ok and (as_given or np.isfinite(c.cost))) else None
-        if s.try_start(c.theta, origin, c.cost, max_nfev=bound, trial=bound is not None):
+        bound = o.trial_nfev if c.as_given else o.spectral_trial_nfev
+        bound = bound if (spectral_ok and (c.as_given or np.isfinite(c.cost))) else None
+        if s.try_start(c.theta, origin, c.cost, max_nfev=bound, trial=bound is not None, as_given=c.as_given):
             return True
         if s.stopped_short is not None:
-            waiting.append((origin, *s.stopped_short))
+            waiting.append((origin, c.as_given, *s.stopped_short))
         return False
 
     def resume() -> bool:
         """The waiting trials, from where each stopped, with the rest of its budget."""
         while waiting and not out_of_time():
-            origin, res, left = waiting.pop(0)
-            again = origin.replace("(as given)", "(as given, resumed)") if "(as given)" in origin else f"{origin} (resumed)"
-            if s.try_start(res.theta, again, max_nfev=left):
+            origin, as_given, res, left = waiting.pop(0)
+            label = origin.replace("(as given)", "(as given, resumed)") if as_given else f"{origin} (resumed)"
+            if s.try_start(res.theta, label, max_nfev=left, as_given=as_given):
                 return True
         return False
 
