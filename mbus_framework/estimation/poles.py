@@ -380,6 +380,15 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         d = np.abs(z[:, None] - np.exp(s * h)[None, :]).min(axis=1)
         return np.minimum(d, POLE_CAP)
 
+    def capped_rows(poles):  # capped() of every pole set (k, z.size): the same elementwise numbers
+        out = np.full((len(poles), z.size), POLE_CAP)
+        sizes = np.array([p.size for p in poles])
+        for size in np.unique(sizes[sizes > 0]):
+            rows = np.flatnonzero(sizes == size)
+            e = np.exp(np.array([poles[k] for k in rows]) * h)  # (rows, n)
+            out[rows] = np.minimum(np.abs(z[None, :, None] - e[:, None, :]).min(axis=2), POLE_CAP)
+        return out
+
     def theta_of(x):
         th = theta.copy()
         th[mv] = np.exp(np.clip(x, zlo, zhi))
@@ -397,10 +406,10 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         xs, dx = _forward_steps(x, DIFF_STEP)
         try:
             poles = _continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in (x, *xs)]))
-            s, ahead = poles[0], (poles[1:], dx)
+            rows = capped_rows(poles)
+            r, ahead = rows[0], (rows[1:], dx)
         except np.linalg.LinAlgError:  # a Jacobian point failed: the residual alone, as before
-            s, ahead = _continuous_poles(problem.model, theta_of(x)[:n_model]), None
-        r = capped(s)
+            r, ahead = capped(_continuous_poles(problem.model, theta_of(x)[:n_model])), None
         last[:] = [np.array(x, copy=True), r, ahead]
         cost = float(r @ r)
         if not best or cost < best[-1]:
@@ -415,11 +424,11 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
             residual(x)
         f0 = last[1]
         if last[2] is not None:
-            poles, dx = last[2]
+            rows, dx = last[2]
         else:
             xs, dx = _forward_steps(x, DIFF_STEP)
-            poles = _continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in xs]))
-        return np.array([(capped(sp) - f0) / d for sp, d in zip(poles, dx)]).T
+            rows = capped_rows(_continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in xs])))
+        return ((rows - f0) / dx[:, None]).T
 
     # the pattern left every damping at its least value, where the pole radii barely move with
     # it: start from the best common position of the damping-like parameters in their range
@@ -430,7 +439,7 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         xs = np.repeat(x0[None, :], 41, axis=0)
         xs[:, soft] = zlo[soft] + np.linspace(0.0, 1.0, 41)[:, None] * (zhi[soft] - zlo[soft])
         poles = _continuous_poles_batch(problem.model, np.array([theta_of(x)[:n_model] for x in xs]))
-        costs = [float(np.sum(capped(sp) ** 2)) for sp in poles]
+        costs = [float(np.sum(r ** 2)) for r in capped_rows(poles)]
         x0 = xs[int(np.argmin(costs))]
     try:
         res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
