@@ -603,8 +603,9 @@ class ChainModel(MediumModel):
         try:  # a law branching on values or calling float() raises on columns: row by row
             with np.errstate(all="ignore"):
                 laws = self._link_matrices(list(thetas.T))
-                V = np.empty((thetas.shape[0], sum(len(_slots(lm)) for _, lm in laws)))
-                for j, x in enumerate(x for _, lm in laws for x in _slots(lm)):
+                slots = [x for _, lm in laws for x in _slots(lm)]
+                V = np.empty((thetas.shape[0], len(slots)))
+                for j, x in enumerate(slots):
                     V[:, j] = x
         except (TypeError, ValueError):
             return np.array([np.asarray(self.state_space(th).A, float) for th in thetas])

@@ -394,6 +394,11 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         th[mv] = np.exp(np.clip(x, zlo, zhi))
         return th
 
+    def thetas_of(xs):  # theta_of() of every row of xs (k, n_model), the same elementwise numbers
+        th = np.repeat(theta[None, :], len(xs), axis=0)
+        th[:, mv] = np.exp(np.clip(xs, zlo, zhi))
+        return th[:, :n_model]
+
     last: list = [None, None, None]  # the last residual evaluated: (x, r, its Jacobian's point poles)
     best: list[float] = []  # the least cost after each evaluation
     best_x: list = [None]
@@ -405,7 +410,7 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         # eigenvalue routine runs matrix by matrix)
         xs, dx = _forward_steps(x, DIFF_STEP)
         try:
-            poles = _continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in (x, *xs)]))
+            poles = _continuous_poles_batch(problem.model, thetas_of(np.vstack([x, xs])))
             rows = capped_rows(poles)
             r, ahead = rows[0], (rows[1:], dx)
         except np.linalg.LinAlgError:  # a Jacobian point failed: the residual alone, as before
