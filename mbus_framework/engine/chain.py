@@ -596,9 +596,9 @@ class ChainModel(MediumModel):
         same numbers row by row: the link laws evaluated once on parameter columns (N,)
         (arithmetic laws broadcast) and each row's slots v mapped by the compiled assembly
         A(v) = A_0 + v @ A_s (per row, the product :meth:`CompiledAssembly.evaluate` forms).
-        Laws that do not broadcast, other structures and non-finite rows: row by row."""
+        Laws that do not broadcast, a single row and non-finite rows: row by row."""
         thetas = np.asarray(thetas, dtype=float)
-        if thetas.ndim != 2 or thetas.shape[0] == 0:
+        if thetas.ndim != 2 or thetas.shape[0] <= 1:  # nothing to batch
             return np.array([np.asarray(self.state_space(th).A, float) for th in thetas.reshape(-1, thetas.shape[-1])])
         try:  # a law branching on values or calling float() raises on columns: row by row
             with np.errstate(all="ignore"):
