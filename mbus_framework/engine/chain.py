@@ -591,6 +591,37 @@ class ChainModel(MediumModel):
                 return self._compiled(laws).evaluate(v)
         return self._assemble(laws, theta)
 
+    def state_matrices_batch(self, thetas) -> np.ndarray:
+        """A (N, n, n) of :meth:`state_space` for every row of float ``thetas`` (N, p), the
+        same numbers row by row: the link laws evaluated once on parameter columns (N,)
+        (arithmetic laws broadcast) and each row's slots v mapped by the compiled assembly
+        A(v) = A_0 + v @ A_s (per row, the product :meth:`CompiledAssembly.evaluate` forms).
+        Laws that do not broadcast, a single row and non-finite rows: row by row."""
+        thetas = np.asarray(thetas, dtype=float)
+        if thetas.ndim != 2 or thetas.shape[0] <= 1:  # nothing to batch
+            return np.array([np.asarray(self.state_space(th).A, float) for th in thetas.reshape(-1, thetas.shape[-1])])
+        try:  # a law branching on values or calling float() raises on columns: row by row
+            with np.errstate(all="ignore"):
+                laws = self._link_matrices(list(thetas.T))
+                slots = [x for _, lm in laws for x in _slots(lm)]
+                V = np.empty((thetas.shape[0], len(slots)))
+                for j, x in enumerate(slots):
+                    V[:, j] = x
+        except (TypeError, ValueError):
+            return np.array([np.asarray(self.state_space(th).A, float) for th in thetas])
+        compiled = self._compiled(laws)
+        n = compiled.shapes[0][0]
+        base, slopes = compiled.base[: n * n], compiled.slopes[:, : n * n]
+        out = np.empty((thetas.shape[0], n, n))
+        finite = np.all(np.isfinite(V), axis=1)
+        for k in range(thetas.shape[0]):
+            if finite[k]:
+                out[k] = (base + V[k] @ slopes).reshape(n, n)
+            else:
+                with np.errstate(all="ignore"):
+                    out[k] = np.asarray(self.state_space(thetas[k]).A, float)
+        return out
+
     def _link_matrices(self, theta) -> list[tuple[str, LinkMatrices]]:
         return [(d.suffix, d.law.matrices([theta[i] for i in range(sl.start, sl.stop)])) for d, sl in self._slices()]
 

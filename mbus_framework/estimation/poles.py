@@ -88,6 +88,17 @@ def record_poles(u: np.ndarray, y: np.ndarray, order: int, horizon: int | None =
     return z[np.isfinite(z) & (np.abs(z) < 1.0)]
 
 
+def _state_matrices(model, thetas: np.ndarray) -> np.ndarray:
+    """A (N, n, n) of every row of ``thetas``: the model's batched assembly
+    (:meth:`~mbus_framework.engine.chain.ChainModel.state_matrices_batch`, the same numbers)
+    where it has one, else ``state_space`` row by row."""
+    with np.errstate(all="ignore"):
+        batch = getattr(model, "state_matrices_batch", None)
+        if batch is not None:
+            return batch(thetas)
+        return np.array([as_float_ss(model.state_space(th)).A for th in thetas])
+
+
 def _continuous_poles(model, theta: np.ndarray) -> np.ndarray:
     with np.errstate(all="ignore"):
         A = as_float_ss(model.state_space(theta)).A
@@ -99,13 +110,15 @@ def _continuous_poles(model, theta: np.ndarray) -> np.ndarray:
 def _continuous_poles_batch(model, thetas: np.ndarray) -> list[np.ndarray]:
     """:func:`_continuous_poles` of every row of ``thetas``: one stacked eigenvalue call (the
     same LAPACK routine per matrix, without the per-call overhead)."""
-    with np.errstate(all="ignore"):
-        mats = [as_float_ss(model.state_space(th)).A for th in thetas]
-    finite = [bool(np.all(np.isfinite(A))) for A in mats]
+    thetas = np.asarray(thetas, float)
+    if thetas.shape[0] == 0:
+        return []
+    mats = _state_matrices(model, thetas)
+    finite = np.all(np.isfinite(mats), axis=(1, 2))
     out = [np.empty(0, complex)] * len(mats)
-    rows = [k for k, ok in enumerate(finite) if ok]
-    if rows:
-        lam = np.linalg.eigvals(np.array([mats[k] for k in rows]))
+    rows = np.flatnonzero(finite)
+    if rows.size:
+        lam = np.linalg.eigvals(mats[rows])
         for k, l in zip(rows, lam):
             out[k] = l
     return out
@@ -367,18 +380,42 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         d = np.abs(z[:, None] - np.exp(s * h)[None, :]).min(axis=1)
         return np.minimum(d, POLE_CAP)
 
+    def capped_rows(poles):  # capped() of every pole set (k, z.size): the same elementwise numbers
+        out = np.full((len(poles), z.size), POLE_CAP)
+        sizes = np.array([p.size for p in poles])
+        for size in np.unique(sizes[sizes > 0]):
+            rows = np.flatnonzero(sizes == size)
+            e = np.exp(np.array([poles[k] for k in rows]) * h)  # (rows, n)
+            out[rows] = np.minimum(np.abs(z[None, :, None] - e[:, None, :]).min(axis=2), POLE_CAP)
+        return out
+
     def theta_of(x):
         th = theta.copy()
         th[mv] = np.exp(np.clip(x, zlo, zhi))
         return th
 
-    last: list = [None, None]  # the last residual evaluated: (x, r), the Jacobian's base point
+    def thetas_of(xs):  # theta_of() of every row of xs (k, n_model), the same elementwise numbers
+        th = np.repeat(theta[None, :], len(xs), axis=0)
+        th[:, mv] = np.exp(np.clip(xs, zlo, zhi))
+        return th[:, :n_model]
+
+    last: list = [None, None, None]  # the last residual evaluated: (x, r, its Jacobian's point poles)
     best: list[float] = []  # the least cost after each evaluation
     best_x: list = [None]
 
     def residual(x):
-        r = capped(_continuous_poles(problem.model, theta_of(x)[:n_model]))
-        last[:] = [np.array(x, copy=True), r]
+        # x and the Jacobian's points in one batch: the least-squares solver asks for the
+        # Jacobian at nearly every residual it evaluates (every accepted step); the poles of
+        # each point are the numbers evaluated one by one (the same matrices, and the stacked
+        # eigenvalue routine runs matrix by matrix)
+        xs, dx = _forward_steps(x, DIFF_STEP)
+        try:
+            poles = _continuous_poles_batch(problem.model, thetas_of(np.vstack([x, xs])))
+            rows = capped_rows(poles)
+            r, ahead = rows[0], (rows[1:], dx)
+        except np.linalg.LinAlgError:  # a Jacobian point failed: the residual alone, as before
+            r, ahead = capped(_continuous_poles(problem.model, theta_of(x)[:n_model])), None
+        last[:] = [np.array(x, copy=True), r, ahead]
         cost = float(r @ r)
         if not best or cost < best[-1]:
             best_x[0] = last[0]
@@ -388,10 +425,15 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         return r
 
     def jacobian(x):
-        f0 = last[1] if last[0] is not None and np.array_equal(last[0], x) else residual(x)
-        xs, dx = _forward_steps(x, DIFF_STEP)
-        poles = _continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in xs]))
-        return np.array([(capped(sp) - f0) / d for sp, d in zip(poles, dx)]).T
+        if last[0] is None or not np.array_equal(last[0], x):
+            residual(x)
+        f0 = last[1]
+        if last[2] is not None:
+            rows, dx = last[2]
+        else:
+            xs, dx = _forward_steps(x, DIFF_STEP)
+            rows = capped_rows(_continuous_poles_batch(problem.model, np.array([theta_of(xi)[:n_model] for xi in xs])))
+        return ((rows - f0) / dx[:, None]).T
 
     # the pattern left every damping at its least value, where the pole radii barely move with
     # it: start from the best common position of the damping-like parameters in their range
@@ -402,7 +444,7 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         xs = np.repeat(x0[None, :], 41, axis=0)
         xs[:, soft] = zlo[soft] + np.linspace(0.0, 1.0, 41)[:, None] * (zhi[soft] - zlo[soft])
         poles = _continuous_poles_batch(problem.model, np.array([theta_of(x)[:n_model] for x in xs]))
-        costs = [float(np.sum(capped(sp) ** 2)) for sp in poles]
+        costs = [float(np.sum(r ** 2)) for r in capped_rows(poles)]
         x0 = xs[int(np.argmin(costs))]
     try:
         res = least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=max_nfev, x_scale=1.0)
