@@ -13,8 +13,9 @@ least damping ratio
 
     ζ_i = -Re(s_i) / |s_i|,   s_i = ln(z_i) / Δt   [Δt: sample interval, s]
 
-is below a threshold (lightly damped: ζ of 1e-4 to 1e-2), the pole starts are tried before the
-scan (``StrategyOptions.poles_first``). Noise-dominated records end null by nature (the best
+is below ``light_damping`` (0.002: nearly undamped chains are identified at 1e-4 to 1.5e-3,
+a heavily damped record's spurious poles at 3e-3 and above), the pole starts are tried before
+the scan (``StrategyOptions.poles_first``). Noise-dominated records end null by nature (the best
 model explains little of them): a record whose energy is less than twice the noise's,
 J_0 < 2 · ½ N σ² (σ² the model-free noise variance of
 :func:`~mbus_framework.estimation.acceptance.estimate_noise`), keeps the usual order.
