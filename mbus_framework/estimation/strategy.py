@@ -64,6 +64,7 @@ from mbus_framework.estimation.local import LocalResult
 from mbus_framework.estimation.minima import near, region_around
 from mbus_framework.estimation.poles import pole_candidates
 from mbus_framework.estimation.problem import FitProblem, Progress, SearchTimeout
+from mbus_framework.estimation.routing import all_null, noise_dominated, null_cost, record_damping
 from mbus_framework.estimation.search_report import SearchReport, at_box_edge, stage_trace  # noqa: F401  (at_box_edge re-exported)
 from mbus_framework.estimation.spectral import record_spectrum
 from mbus_framework.estimation.strategy_options import (  # noqa: F401  (re-exported: the solvers' options)
@@ -99,6 +100,7 @@ class _Search:
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
         self._spectrum = None
+        self.routing: dict | None = None
         self.report = SearchReport("", {}, signal_bandwidth_hz=f_sig, bands_hz=[b.cutoff_hz for b in self.filters])
         self.report.noise = self.noise.as_dict()
         self.report.box = self._box_dict()
@@ -182,6 +184,17 @@ class _Search:
         found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed)
         self.report.poles = {"candidates": [dict(zip(self.names, map(float, c.theta))) for c in found]}
         return found
+
+    def rings_unexplained(self) -> bool:
+        """Every end so far null and the record's poles ring: pole starts first (:mod:`.routing`)."""
+        o, p, null = self.options, self.problem, null_cost(self.problem.y)
+        noise_var = self.noise.periods if self.noise.periods is not None else self.noise.out_of_band
+        costs = [float(e["cost"]) for e in self.report.starts if "cost" in e]
+        if not all_null(costs, null, o.null_fraction) or noise_dominated(null, p.y.size, noise_var):
+            return False
+        zeta = record_damping(p)
+        self.routing = {"null_cost": null, "least_damping_ratio": zeta, "before_scan": zeta < o.light_damping}
+        return zeta < o.light_damping
 
     def expect(self, more: int) -> None:
         """Raise the progress total to the starts done plus ``more``: the later phases (record
@@ -435,6 +448,27 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
             return True
     if resume():
         return True
+    poles_done = False
+    def pole_phase() -> bool:
+        """3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's
+        grid; before 2. when every end so far explains nothing and the record rings (:mod:`.routing`)."""
+        nonlocal poles_done
+        poles_done = True
+        poles = s.pole_candidates()
+        s.report.poles.update({"routing": s.routing} if s.routing else {})
+        s.expect(len(poles))
+        for c in poles:
+            if out_of_time():
+                break
+            if s.best is not None and near(c.theta, s.best.theta, 1e-3):
+                continue
+            if s.try_start(c.theta, "record poles", windows=o.pole_windows):
+                return True
+        return False
+
+    pole_ok = o.global_search and o.pole_starts and spectral_ok
+    if pole_ok and o.poles_first and not out_of_time() and s.rings_unexplained() and pole_phase():
+        return True
     # 2. the whole region
     if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
         found = s.candidates_from(s.scan(), o.spectral_candidates)
@@ -448,17 +482,8 @@ def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]
                 return True
         if resume():
             return True
-    # 3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's grid
-    if o.global_search and o.pole_starts and spectral_ok and not out_of_time():
-        poles = s.pole_candidates()
-        s.expect(len(poles))
-        for c in poles:
-            if out_of_time():
-                break
-            if s.best is not None and near(c.theta, s.best.theta, 1e-3):
-                continue
-            if s.try_start(c.theta, "record poles", windows=o.pole_windows):
-                return True
+    if pole_ok and not poles_done and not out_of_time() and pole_phase():
+        return True
     # 4. last resort: around the best minimum
     return not out_of_time() and s.fallback(out_of_time)
 

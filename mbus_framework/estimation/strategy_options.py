@@ -82,6 +82,13 @@ class StrategyOptions(BaseModel):
     pole_starts: int = Field(3, ge=0, description="time-domain fits from starts whose poles match the record's "
                                                   "subspace-identified poles (lightly damped chains), when the "
                                                   "scan's were not accepted")
+    poles_first: bool = Field(True, description="try the pole starts before the scan when every time-domain end "
+                              "so far explains less than null_fraction of the record (a zero-output cost) and "
+                              "the record's identified poles ring (least damping ratio < light_damping)")
+    null_fraction: float = Field(0.05, gt=0, lt=1, description="poles_first: an end whose cost is at least "
+                                 "(1 - null_fraction) x 0.5 sum(y^2) explains (almost) none of the record")
+    light_damping: float = Field(2e-3, gt=0, lt=1, description="poles_first: the record rings when its least "
+                                 "damping ratio -Re(s)/|s| (s = ln z / dt of its identified poles) is below this")
     pole_windows: int = Field(4, ge=0, description="pole starts: first fitted on the record's first N/2^k "
                                                    "samples, k = pole_windows..1, then on the whole record "
                                                    "(time continuation for ringing chains; 0 = off)")
