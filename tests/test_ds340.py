@@ -32,8 +32,11 @@ def fake():
 
 
 def driver(fake, **options) -> DS340:
-    options.setdefault("timeout", 0.3)
-    options.setdefault("ready_timeout", 0.3)
+    """The driver on the fake's pseudo-terminal. Reply timeouts 3 s: the fake runs in a thread of
+    this process, which a loaded test machine can starve for a few tenths of a second (the
+    timeout tests ask for their own, shorter ones)."""
+    options.setdefault("timeout", 3.0)
+    options.setdefault("ready_timeout", 3.0)
     return DS340(DS340Options(port=fake.port, **options)).open()
 
 
@@ -92,7 +95,7 @@ def test_bad_checksum_is_an_upload_error_that_suggests_the_other_width(fake):
 
 def test_checksum_width_mismatch_fails_in_the_upload_step(fake):
     fake.checksum_bytes = 4  # instrument waits for two more bytes than the driver sends
-    d = driver(fake)
+    d = driver(fake, timeout=0.3, ready_timeout=0.3)  # the upload ends in a timeout
     with pytest.raises(InstrumentError, match=r"^DS340: upload: "):
         d.upload(POINTS)
     d.close()
@@ -158,7 +161,7 @@ def test_silent_instrument_times_out(fake):
 
 def test_wrong_instrument_or_garbage_identity(fake):
     fake.idn = "GW,GDS-2062,EF1,V1"
-    d = driver(fake)
+    d = driver(fake, timeout=0.3)  # the cut-off reply ends in a timeout
     with pytest.raises(InstrumentError, match=r"^DS340: identify: unexpected \*IDN\? reply 'GW,GDS-2062"):
         d.identify()
     fake.replies["*IDN?"] = b"\xf8\x80\x7f\xfe\r"  # what a baud-rate mismatch looks like

@@ -107,12 +107,16 @@ needs_pty = pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs POSIX p
 
 
 @pytest.fixture
-def pty_scope():
+def pty_scope(request):
+    """The driver on a pseudo-terminal with the fake scope behind it. Reply timeout 3 s (the fake
+    runs in a thread of this process, which a loaded test machine can starve for a few tenths of
+    a second); the tests of timeouts ask for 0.3 s with ``indirect`` parametrisation."""
     pytest.importorskip("pyvisa_py", reason="pyvisa-py opens ASRL resources on serial ports")
     from fakes.gds2000 import FakeGDS2000
 
+    timeout = getattr(request, "param", 3.0)
     with FakeGDS2000(record_points=500) as fake:
-        options = GDS2000Options(resource=f"ASRL{fake.port}::INSTR", timeout=0.3, ch1=ChannelOptions(scale=0.5),
+        options = GDS2000Options(resource=f"ASRL{fake.port}::INSTR", timeout=timeout, ch1=ChannelOptions(scale=0.5),
                                  ch2=ChannelOptions(scale=0.2), timebase=1e-6, settle=0.0, arm_delay=0.0)
         scope = GDS2000(options).open()
         scope.configure()
@@ -160,6 +164,7 @@ def test_pty_run_stop_and_single_shot_arming(pty_scope):
 
 
 @needs_pty
+@pytest.mark.parametrize("pty_scope", [0.3], indirect=True)
 def test_pty_timeout_short_read(pty_scope):
     fake, scope = pty_scope
     _load(fake, 1, CODES)
@@ -170,6 +175,7 @@ def test_pty_timeout_short_read(pty_scope):
 
 
 @needs_pty
+@pytest.mark.parametrize("pty_scope", [0.3], indirect=True)
 def test_pty_silent_scope(pty_scope):
     fake, scope = pty_scope
     fake.silent = True
