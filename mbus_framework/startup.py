@@ -24,11 +24,6 @@ def defer_unused_numpy(names: tuple[str, ...] = UNUSED_NUMPY) -> list[str]:
     return [name for name in names if _defer(name)]
 
 
-def defer_f2py() -> bool:
-    """Make ``numpy.f2py`` lazy (imports numpy); False when it is already loaded or cannot be."""
-    return _defer("numpy.f2py")
-
-
 def _defer(name: str) -> bool:
     if name in sys.modules:
         return False

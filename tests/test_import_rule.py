@@ -117,8 +117,8 @@ def test_deferred_f2py_is_the_real_module_when_used():
     ``from numpy import *`` but works as soon as something uses it."""
     code = """
 import json, sys
-from mbus_framework.startup import defer_f2py
-deferred = defer_f2py()
+from mbus_framework.startup import defer_unused_numpy
+deferred = "numpy.f2py" in defer_unused_numpy(("numpy.f2py",))
 import scipy.linalg, scipy.optimize
 before = "numpy.f2py.crackfortran" in sys.modules
 import numpy.f2py
