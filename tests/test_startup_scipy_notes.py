@@ -1,0 +1,137 @@
+"""scipy's array-API docstring notes made cheap at ``mbus-run`` start-up (mbus_framework.startup).
+
+The reference is scipy's own path: every docstring ``xp_capabilities`` decorates parses, with
+scipy's numpydoc parser, to the same sections with and without the fast path (the See Also
+entries keep their names; scipy's re-rendering only adds roles). The fast path is process-local:
+importing the library or fitting through the API leaves scipy untouched.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from mbus_framework.startup import _decorator_as_expected, insert_note
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_SECTIONS = """
+import json, re, sys
+if sys.argv[1] == "1":
+    from mbus_framework.startup import cheap_array_api_notes
+    assert cheap_array_api_notes()
+import scipy.special, scipy.fft, scipy.linalg, scipy.optimize
+from scipy._lib._array_api import xp_capabilities_table
+from scipy._lib._docscrape import FunctionDoc
+out = {}
+for i, f in enumerate(xp_capabilities_table):
+    doc = FunctionDoc(None, doc=f.__doc__ or "")
+    sections = {k: repr(doc[k]) for k in doc if k != "See Also"}
+    sections["See Also"] = re.findall(r"\\('([^']+)', ", repr(doc["See Also"]))
+    out[f"{i}:{f.__name__}"] = sections
+print("\\n@@" + json.dumps(out))
+"""
+
+
+def _run(code: str, *args: str) -> object:
+    done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert "@@" in done.stdout, done.stderr[-2000:]
+    return json.loads(done.stdout.rpartition("@@")[2])
+
+
+def test_notes_fast_path_keeps_every_docstring_section():
+    scipys, fast = _run(_SECTIONS, "0"), _run(_SECTIONS, "1")
+    assert len(scipys) > 100 and fast.keys() == scipys.keys()
+    assert [name for name in scipys if fast[name] != scipys[name]] == []
+    notes = [sections["Notes"] for sections in fast.values()]
+    assert all("Array API Standard Support" in n for n in notes)
+
+
+def test_decorated_functions_work_and_carry_their_note():
+    code = """
+import json
+from mbus_framework.startup import cheap_array_api_notes
+patched = cheap_array_api_notes()
+import numpy as np
+from scipy import fft, linalg, optimize, special
+from scipy._lib import _array_api
+x = np.array([1.0, 2.0, 0.5, -1.0, 3.0])
+T = np.array([[4.0, 1.0, 0.5], [1.0, 4.0, 1.0], [0.5, 1.0, 4.0]])
+fit = optimize.least_squares(lambda p: p - np.array([1.0, -2.0]), np.zeros(2), method="lm")
+print("\\n@@" + json.dumps({
+    "patched": patched, "inserter": type(_array_api.FunctionDoc).__name__ + _array_api.FunctionDoc.__name__,
+    "ndtr": float(special.ndtr(0.0)), "stdtrit": float(special.stdtrit(10, 0.975)),
+    "fdtrc": float(special.fdtrc(2, 10, 4.102821015130399)),
+    "fft": float(np.max(np.abs(fft.irfft(fft.rfft(x), 5) - x))),
+    "toeplitz": float(np.max(np.abs(linalg.solve_toeplitz(T[:, 0], x[:3]) - np.linalg.solve(T, x[:3])))),
+    "lsq": fit.x.tolist(),
+    "docs": [f.__doc__ for f in (special.ndtr, special.stdtrit, special.fdtrc, fft.rfft)],
+}))
+"""
+    got = _run(code)
+    assert got["patched"] and got["inserter"] == "type_NoteInserter"
+    assert got["ndtr"] == 0.5
+    assert got["stdtrit"] == pytest.approx(2.228138852, rel=1e-9)  # t-table, 10 dof, 97.5 %
+    assert got["fdtrc"] == pytest.approx(0.05, rel=1e-9)  # F-table: F(2, 10) 95 % point 4.1028
+    assert got["fft"] < 1e-14 and got["toeplitz"] < 1e-14
+    assert got["lsq"] == pytest.approx([1.0, -2.0], abs=1e-12)
+    for doc in got["docs"]:
+        assert "Array API Standard Support" in doc and "Notes\n-----" in doc
+
+
+def test_mbus_run_applies_the_fast_path_and_library_use_does_not(tmp_path):
+    run = tmp_path / "run"
+    code = f"""
+import json, sys
+from mbus_framework.cli import main
+status = main([{str(ROOT / "configs" / "potato.yaml")!r}, "-o", {str(run)!r}, "-q", "--no-plots"])
+from scipy._lib import _array_api
+print("\\n@@" + json.dumps([status, _array_api.FunctionDoc.__name__]))
+"""
+    assert _run(code) == [0, "_NoteInserter"]
+    code = f"""
+import json
+import numpy as np
+import mbus_framework as mbus
+import mbus_framework.pipeline.run, mbus_framework.api
+t, u, y = np.loadtxt({str(run / "measurement.csv")!r}, delimiter=",", skiprows=1, unpack=True)[:3]
+fit = mbus.fit(t, u, y, sample={{"length": 0.03, "diameter": 0.0254, "density": 1080.0}}, plots=False)
+import scipy.special
+from scipy._lib import _array_api, _docscrape
+print("\\n@@" + json.dumps([bool(fit.success), _array_api.FunctionDoc is _docscrape.FunctionDoc]))
+"""
+    assert _run(code) == [True, True]
+
+
+def test_a_different_decorator_is_left_alone():
+    """scipy's internals as expected pass the check; any other shape fails it (scipy then runs as usual)."""
+    from scipy._lib import _array_api, _docscrape
+
+    assert _decorator_as_expected(_array_api, _docscrape)
+
+    def xp_capabilities(**kw):
+        def decorator(f):
+            f.__doc__ = (f.__doc__ or "") + "\n" + str(kw)  # not the FunctionDoc round trip
+            return f
+        return decorator
+
+    other = types.SimpleNamespace(FunctionDoc=_docscrape.FunctionDoc, xp_capabilities=xp_capabilities)
+    assert not _decorator_as_expected(other, _docscrape)
+    renamed = types.SimpleNamespace(FunctionDoc=object, xp_capabilities=_array_api.xp_capabilities)
+    assert not _decorator_as_expected(renamed, _docscrape)
+    assert not _decorator_as_expected(types.SimpleNamespace(), types.SimpleNamespace())
+
+
+def test_insert_note_places_the_note_in_the_notes_section():
+    doc = "Summary.\n\nParameters\n----------\nx : float\n\nNotes\n-----\nOld note.\n\nExamples\n--------\n>>> 1\n"
+    assert insert_note(doc, "\nNEW\n") == ("Summary.\n\nParameters\n----------\nx : float\n\nNotes\n-----\n"
+                                           "Old note.\n\nNEW\n\nExamples\n--------\n>>> 1\n")
+    no_notes = "Summary.\n\nReferences\n----------\n.. [1] A.\n\nExamples\n--------\n>>> 1"
+    assert insert_note(no_notes, "NEW") == ("Summary.\n\nNotes\n-----\nNEW\n\nReferences\n----------\n.. [1] A.\n\n"
+                                            "Examples\n--------\n>>> 1\n")
+    assert insert_note("Summary only.", "NEW") == "Summary only.\n\nNotes\n-----\nNEW\n"
+    assert insert_note("", "NEW") == "Notes\n-----\nNEW\n"
