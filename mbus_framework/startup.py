@@ -9,12 +9,13 @@ a run does not use. :func:`defer_unused_numpy` registers them as lazy modules
 access, so code that does use one gets the real module. (``numpy.ma``, ``numpy.random``,
 ``numpy.fft``, ``numpy.linalg`` and ``numpy.typing`` are used: ``np.median`` asks ``numpy.ma``.)
 
-:func:`cheap_array_api_notes` makes the array-API note scipy adds to about 200 docstrings at import
-cheap (the same note in the same Notes section, without re-parsing each docstring). Both are
+:func:`cheap_scipy_notes` makes the notes scipy adds to about 270 docstrings at import cheap (the
+same note in the same section, without re-parsing each docstring). Both are
 process-local and applied by the ``mbus-run`` command only, never on ``import mbus_framework``.
 """
 from __future__ import annotations
 
+import importlib
 import inspect
 import re
 import sys
@@ -53,80 +54,121 @@ def _defer(name: str) -> bool:
         return False
 
 
-# --- scipy's array-API notes ------------------------------------------------------------------------
+# --- scipy's docstring notes ------------------------------------------------------------------------
 
-#: a numpydoc section heading (dedented docstring): a title line underlined by dashes
-_HEADING = re.compile(r"^([A-Z][A-Za-z ]*)[ \t]*\n[ \t]*-{3,}[ \t]*$", re.MULTILINE)
+#: a numpydoc section heading: a title line underlined by dashes, both as indented as the docstring
+_HEADING = re.compile(r"^([ \t]*)([A-Z][A-Za-z ]*?)[ \t]*\n\1-{3,}[ \t]*$", re.MULTILINE)
+#: the indentation of a docstring's second and later lines (the first is not indented)
+_INDENT = re.compile(r"\n([ \t]*)\S")
+
+#: scipy's decorators that re-parse a docstring only to add a note: (module, decorator factory,
+#: the section the note goes to)
+NOTE_DECORATORS = (("scipy._lib._array_api", "xp_capabilities", "Notes"),
+                   ("scipy._lib._util", "_apply_over_batch", "Extended Summary"))
 
 
-def cheap_array_api_notes() -> bool:
-    """Let scipy's ``xp_capabilities`` decorator add its array-API note without re-parsing.
+def cheap_scipy_notes() -> list[str]:
+    """Let scipy's decorators add their docstring notes without re-parsing each docstring.
 
-    scipy (1.15 and later) decorates about 280 functions of scipy.special, scipy.fft, scipy.linalg
-    and scipy.optimize with ``xp_capabilities``, which parses each docstring with numpydoc's
-    ``FunctionDoc`` at import only to append a note to the Notes section and render the docstring
-    anew: about 0.1 s of CPU at every start-up of a run. This swaps the ``FunctionDoc`` that
-    decorator uses (and only that one) for :class:`_NoteInserter`, which puts the same note at the
-    end of the Notes section of the docstring as written (a new Notes section before References
-    and Examples if there is none), so ``help()`` still shows it. Process-local: applied by the
-    ``mbus-run`` command before scipy's submodules load, never by ``import mbus_framework``.
-    Imports scipy._lib._array_api. Returns False, and changes nothing, when scipy is missing or its
-    decorator is not the one this was written for (the check reads the decorator's code), so scipy
-    then does what it always did."""
-    try:
-        from scipy._lib import _array_api, _docscrape
-    except Exception:  # noqa: BLE001 - an optimisation only: never stop a run
+    scipy (1.15 and later) decorates about 200 functions of scipy.special, .fft, .linalg and
+    .optimize with ``xp_capabilities`` (an array-API note in the Notes section), and 70 functions
+    of scipy.linalg with ``_apply_over_batch`` (a note on batched arguments after the summary).
+    Both parse the docstring with numpydoc's ``FunctionDoc`` at import, only to add the note and
+    render the docstring anew: about 0.15 s of CPU at every start-up of a run. This swaps the
+    ``FunctionDoc`` those two modules use for :class:`_NoteInserter`, which puts the same note
+    in the same section of the docstring as written (``help()`` still shows it), and hands
+    anything else asked of it (scipy's ``rng`` parameter rewrite) to the real ``FunctionDoc``.
+
+    Process-local: applied by the ``mbus-run`` command before scipy's submodules load, never by
+    ``import mbus_framework``. Returns the modules changed; a module whose decorator is not the one
+    this was written for (the check reads the decorator's code) is left alone, and scipy then does
+    what it always did there."""
+    done = []
+    for module_name, factory, section in NOTE_DECORATORS:
+        try:
+            module = importlib.import_module(module_name)
+            from scipy._lib import _docscrape
+        except Exception:  # noqa: BLE001 - an optimisation only: never stop a run
+            continue
+        if module.__dict__.get("FunctionDoc") is _NoteInserter or _decorator_as_expected(
+                module.__dict__, factory, section, _docscrape):
+            module.FunctionDoc = _NoteInserter
+            done.append(module_name)
+    return done
+
+
+def _decorator_as_expected(namespace: dict, factory: str, section: str, docscrape) -> bool:
+    """The decorator ``namespace[factory]`` returns does ``doc = FunctionDoc(f);
+    doc[section].append(note); ... str(doc).split("\\n", 1)[1]`` with scipy's own ``FunctionDoc``
+    (the code this fast path stands in for)."""
+    if namespace.get("FunctionDoc") is not getattr(docscrape, "FunctionDoc", None):
         return False
-    if _array_api.__dict__.get("FunctionDoc") is _NoteInserter:
-        return True
-    if not _decorator_as_expected(_array_api, _docscrape):
-        return False
-    _array_api.FunctionDoc = _NoteInserter
-    return True
-
-
-def _decorator_as_expected(array_api, docscrape) -> bool:
-    """scipy's decorator does ``doc = FunctionDoc(f); doc['Notes'].append(note);
-    str(doc).split("\\n", 1)[1]`` (the code this fast path stands in for)."""
-    if array_api.__dict__.get("FunctionDoc") is not getattr(docscrape, "FunctionDoc", None):
-        return False
-    code = getattr(array_api.__dict__.get("xp_capabilities"), "__code__", None)
+    code = getattr(namespace.get(factory), "__code__", None)
     inner = [c for c in getattr(code, "co_consts", ()) if getattr(c, "co_name", None) == "decorator"]
     return len(inner) == 1 and {"FunctionDoc", "append", "split", "__doc__"} <= set(inner[0].co_names) \
-        and {"Notes", "\n", 1} <= set(inner[0].co_consts)
+        and {section, "\n", 1} <= set(inner[0].co_consts)
 
 
 class _NoteInserter:
-    """What ``xp_capabilities`` asks of ``FunctionDoc(f)``: ``doc['Notes']`` (a list the note is
-    appended to) and ``str(doc)`` (a header line, then the docstring with the notes)."""
+    """What the decorators ask of ``FunctionDoc(f)``: ``doc[section]`` (a list a note is appended
+    to) and ``str(doc)`` (a header line, then the docstring with the notes). Anything else is
+    handed to scipy's ``FunctionDoc``, built then, with the notes so far."""
 
-    def __init__(self, func):
-        self._doc = inspect.getdoc(func) or ""
-        self._notes: list[str] = []
+    SECTIONS = ("Notes", "Extended Summary")
 
-    def __getitem__(self, key: str) -> list[str]:
-        if key != "Notes":
-            raise KeyError(key)
-        return self._notes
+    def __init__(self, func, *args, **kwargs):
+        self._func, self._args, self._kwargs = func, args, kwargs
+        self._added: dict[str, list[str]] = {}
+        self._full = None
+
+    def _real(self):
+        if self._full is None:
+            from scipy._lib._docscrape import FunctionDoc
+
+            self._full = FunctionDoc(self._func, *self._args, **self._kwargs)
+            for section, notes in self._added.items():
+                self._full[section] += notes
+        return self._full
+
+    def __getitem__(self, key: str):
+        if self._full is None and key in self.SECTIONS and not self._args and not self._kwargs:
+            return self._added.setdefault(key, [])
+        return self._real()[key]
+
+    def __setitem__(self, key: str, value) -> None:
+        self._real()[key] = value
 
     def __str__(self) -> str:
-        text = self._doc
-        for note in self._notes:
-            text = insert_note(text, note)
-        return "\n" + text  # the decorator drops the first line (FunctionDoc's ``.. function::`` header)
+        if self._full is not None:
+            return str(self._full)
+        text = getattr(self._func, "__doc__", None) or ""
+        for section, notes in self._added.items():
+            for note in notes:
+                text = insert_note(text, note, section)
+        return "\n" + text  # the decorators drop the first line (FunctionDoc's ``.. function::`` header)
 
 
-def insert_note(doc: str, note: str) -> str:
-    """``doc`` (a dedented numpydoc docstring) with ``note`` at the end of its Notes section, or in
-    a new Notes section before References or Examples (or at the end) if it has none."""
-    note = note.strip("\n")
-    headings = [(m.group(1).strip(), m.start()) for m in _HEADING.finditer(doc)]
-    names = [name for name, _ in headings]
-    if "Notes" in names:
-        later = headings[names.index("Notes") + 1:]
-        at = later[0][1] if later else len(doc)
+def insert_note(doc: str, note: str, section: str = "Notes") -> str:
+    """``doc`` (a numpydoc docstring as written) with ``note`` added to ``section``, indented as
+    the section headings are, so that :func:`inspect.getdoc` shows it as part of the docstring.
+
+    Notes: at the end of the Notes section, or in a new one before References or Examples (or at
+    the end). Extended Summary: before the first section heading (or at the end)."""
+    headings = [(m.group(2), m.start(), m.group(1)) for m in _HEADING.finditer(doc)]
+    names = [name for name, _, _ in headings]
+    if section == "Extended Summary":
+        after = headings[:1]
+    elif "Notes" in names:
+        after = headings[names.index("Notes") + 1:][:1] or [(None, len(doc), headings[names.index("Notes")][2])]
     else:
-        at = next((start for name, start in headings if name in ("References", "Examples")), len(doc))
-        note = f"Notes\n-----\n{note}"
-    parts = [doc[:at].rstrip(), note, doc[at:].strip("\n")]
-    return "\n\n".join(part for part in parts if part) + "\n"
+        after = [h for h in headings if h[0] in ("References", "Examples")][:1]
+        note = f"Notes\n-----\n{note.strip(chr(10))}"
+    if after:
+        at, indent = after[0][1], after[0][2]
+    else:
+        indent = headings[0][2] if headings else min(_INDENT.findall(doc), key=len, default="")
+        at = len(doc)
+    note = "\n".join(indent + line if line.strip() else "" for line in note.strip("\n").split("\n"))
+    parts = [doc[:at].rstrip(), note, doc[at:].lstrip("\n")]
+    text = "\n\n".join(part for part in parts if part.strip())
+    return text if parts[2].strip() else text + "\n"  # the docstring's own ending, or the note's

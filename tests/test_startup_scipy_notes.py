@@ -7,6 +7,7 @@ importing the library or fitting through the API leaves scipy untouched.
 """
 from __future__ import annotations
 
+import inspect
 import json
 import subprocess
 import sys
@@ -22,17 +23,21 @@ ROOT = Path(__file__).resolve().parents[1]
 _SECTIONS = """
 import json, re, sys
 if sys.argv[1] == "1":
-    from mbus_framework.startup import cheap_array_api_notes
-    assert cheap_array_api_notes()
+    from mbus_framework.startup import cheap_scipy_notes
+    assert cheap_scipy_notes() == ["scipy._lib._array_api", "scipy._lib._util"]
 import scipy.special, scipy.fft, scipy.linalg, scipy.optimize
 from scipy._lib._array_api import xp_capabilities_table
 from scipy._lib._docscrape import FunctionDoc
+functions = {f"{i}:{f.__name__}": f for i, f in enumerate(xp_capabilities_table)}
+for module in (scipy.special, scipy.fft, scipy.linalg, scipy.optimize):
+    functions.update({f"{module.__name__}.{name}": getattr(module, name) for name in module.__all__
+                      if callable(getattr(module, name, None)) and not isinstance(getattr(module, name), type)})
 out = {}
-for i, f in enumerate(xp_capabilities_table):
-    doc = FunctionDoc(None, doc=f.__doc__ or "")
+for key, f in functions.items():
+    doc = FunctionDoc(f)  # the docstring as inspect.getdoc (help, Sphinx) shows it
     sections = {k: repr(doc[k]) for k in doc if k != "See Also"}
     sections["See Also"] = re.findall(r"\\('([^']+)', ", repr(doc["See Also"]))
-    out[f"{i}:{f.__name__}"] = sections
+    out[key] = sections
 print("\\n@@" + json.dumps(out))
 """
 
@@ -47,15 +52,16 @@ def test_notes_fast_path_keeps_every_docstring_section():
     scipys, fast = _run(_SECTIONS, "0"), _run(_SECTIONS, "1")
     assert len(scipys) > 100 and fast.keys() == scipys.keys()
     assert [name for name in scipys if fast[name] != scipys[name]] == []
-    notes = [sections["Notes"] for sections in fast.values()]
+    notes = [sections["Notes"] for key, sections in fast.items() if key[0].isdigit()]  # xp_capabilities_table
     assert all("Array API Standard Support" in n for n in notes)
 
 
 def test_decorated_functions_work_and_carry_their_note():
     code = """
 import json
-from mbus_framework.startup import cheap_array_api_notes
-patched = cheap_array_api_notes()
+from mbus_framework.startup import cheap_scipy_notes
+patched = cheap_scipy_notes()
+import inspect
 import numpy as np
 from scipy import fft, linalg, optimize, special
 from scipy._lib import _array_api
@@ -69,18 +75,23 @@ print("\\n@@" + json.dumps({
     "fft": float(np.max(np.abs(fft.irfft(fft.rfft(x), 5) - x))),
     "toeplitz": float(np.max(np.abs(linalg.solve_toeplitz(T[:, 0], x[:3]) - np.linalg.solve(T, x[:3])))),
     "lsq": fit.x.tolist(),
-    "docs": [f.__doc__ for f in (special.ndtr, special.stdtrit, special.fdtrc, fft.rfft)],
+    "docs": [inspect.getdoc(f) for f in (special.ndtr, special.stdtrit, special.fdtrc, fft.rfft)],
+    "batch": [inspect.getdoc(f) for f in (linalg.eig, linalg.svd, linalg.qr)],
+    "expm": float(np.max(np.abs(linalg.expm(np.diag([0.0, 1.0])) - np.diag([1.0, np.e])))),
 }))
 """
     got = _run(code)
-    assert got["patched"] and got["inserter"] == "type_NoteInserter"
+    assert got["patched"] == ["scipy._lib._array_api", "scipy._lib._util"] and got["inserter"] == "type_NoteInserter"
     assert got["ndtr"] == 0.5
     assert got["stdtrit"] == pytest.approx(2.228138852, rel=1e-9)  # t-table, 10 dof, 97.5 %
     assert got["fdtrc"] == pytest.approx(0.05, rel=1e-9)  # F-table: F(2, 10) 95 % point 4.1028
     assert got["fft"] < 1e-14 and got["toeplitz"] < 1e-14
     assert got["lsq"] == pytest.approx([1.0, -2.0], abs=1e-12)
+    assert got["expm"] < 1e-14
     for doc in got["docs"]:
         assert "Array API Standard Support" in doc and "Notes\n-----" in doc
+    for doc in got["batch"]:  # the batch note ends the extended summary, before the first section
+        assert doc.index('"batch" dimensions') < doc.index("Parameters\n----------")
 
 
 def test_mbus_run_applies_the_fast_path_and_library_use_does_not(tmp_path):
@@ -109,9 +120,12 @@ print("\\n@@" + json.dumps([bool(fit.success), _array_api.FunctionDoc is _docscr
 
 def test_a_different_decorator_is_left_alone():
     """scipy's internals as expected pass the check; any other shape fails it (scipy then runs as usual)."""
-    from scipy._lib import _array_api, _docscrape
+    from scipy._lib import _array_api, _docscrape, _util
 
-    assert _decorator_as_expected(_array_api, _docscrape)
+    assert _decorator_as_expected(vars(_array_api), "xp_capabilities", "Notes", _docscrape) or \
+        _array_api.FunctionDoc.__name__ == "_NoteInserter"
+    assert _decorator_as_expected(vars(_util), "_apply_over_batch", "Extended Summary", _docscrape) or \
+        _util.FunctionDoc.__name__ == "_NoteInserter"
 
     def xp_capabilities(**kw):
         def decorator(f):
@@ -119,11 +133,12 @@ def test_a_different_decorator_is_left_alone():
             return f
         return decorator
 
-    other = types.SimpleNamespace(FunctionDoc=_docscrape.FunctionDoc, xp_capabilities=xp_capabilities)
-    assert not _decorator_as_expected(other, _docscrape)
-    renamed = types.SimpleNamespace(FunctionDoc=object, xp_capabilities=_array_api.xp_capabilities)
-    assert not _decorator_as_expected(renamed, _docscrape)
-    assert not _decorator_as_expected(types.SimpleNamespace(), types.SimpleNamespace())
+    other = {"FunctionDoc": _docscrape.FunctionDoc, "xp_capabilities": xp_capabilities}
+    assert not _decorator_as_expected(other, "xp_capabilities", "Notes", _docscrape)
+    renamed = {"FunctionDoc": object, "xp_capabilities": _array_api.xp_capabilities}
+    assert not _decorator_as_expected(renamed, "xp_capabilities", "Notes", _docscrape)
+    assert not _decorator_as_expected(vars(_array_api), "xp_capabilities", "Extended Summary", _docscrape)
+    assert not _decorator_as_expected({}, "xp_capabilities", "Notes", types.SimpleNamespace())
 
 
 def test_insert_note_places_the_note_in_the_notes_section():
@@ -132,6 +147,20 @@ def test_insert_note_places_the_note_in_the_notes_section():
                                            "Old note.\n\nNEW\n\nExamples\n--------\n>>> 1\n")
     no_notes = "Summary.\n\nReferences\n----------\n.. [1] A.\n\nExamples\n--------\n>>> 1"
     assert insert_note(no_notes, "NEW") == ("Summary.\n\nNotes\n-----\nNEW\n\nReferences\n----------\n.. [1] A.\n\n"
-                                            "Examples\n--------\n>>> 1\n")
+                                            "Examples\n--------\n>>> 1")
     assert insert_note("Summary only.", "NEW") == "Summary only.\n\nNotes\n-----\nNEW\n"
     assert insert_note("", "NEW") == "Notes\n-----\nNEW\n"
+    assert insert_note(doc, "NEW", "Extended Summary") == doc.replace("Parameters", "NEW\n\nParameters")
+    assert insert_note("Summary.", "NEW", "Extended Summary") == "Summary.\n\nNEW\n"
+
+
+@pytest.mark.parametrize("section", ["Notes", "Extended Summary"])
+@pytest.mark.parametrize("notes", ["", "    Notes\n    -----\n    Old.\n\n"])
+def test_insert_note_into_a_docstring_as_written(section, notes):
+    """An indented docstring (as in the source) shows, through inspect.getdoc, what the dedented
+    one would with the note."""
+    raw = f"Summary.\n\n    More.\n\n    Parameters\n    ----------\n    x : float\n\n{notes}    Examples\n    --------\n    >>> 1\n    "
+    note = "**Note**\n\n    a  b\n    == ==\n"
+    shown = inspect.cleandoc(insert_note(raw, note, section))
+    assert shown == insert_note(inspect.cleandoc(raw), note, section).rstrip("\n")
+    assert ("More.\n\n**Note**" in shown) == (section == "Extended Summary")
