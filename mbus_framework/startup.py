@@ -25,9 +25,20 @@ UNUSED_NUMPY = ("numpy.f2py", "numpy.testing", "numpy.polynomial", "numpy.ctypes
                 "numpy.strings")
 
 
+#: scipy subpackages that scipy.optimize imports (``from scipy import spatial`` in its ``shgo``, and
+#: with it scipy.constants) and a run does not use.
+UNUSED_SCIPY = ("scipy.spatial",)
+
+
 def defer_unused_numpy(names: tuple[str, ...] = UNUSED_NUMPY) -> list[str]:
     """Make the numpy submodules ``names`` lazy (imports numpy); returns those made lazy (not the
     ones already loaded or not found)."""
+    return [name for name in names if _defer(name)]
+
+
+def defer_unused_scipy(names: tuple[str, ...] = UNUSED_SCIPY) -> list[str]:
+    """Make the scipy subpackages ``names`` lazy (imports scipy's top level only), as
+    :func:`defer_unused_numpy` does numpy's; returns those made lazy."""
     return [name for name in names if _defer(name)]
 
 
@@ -37,8 +48,7 @@ def _defer(name: str) -> bool:
     try:
         import importlib.util
 
-        import numpy
-
+        parent = importlib.import_module(name.rpartition(".")[0])
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None:
             return False
@@ -46,8 +56,8 @@ def _defer(name: str) -> bool:
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)
-        # what ``import numpy.<name>`` would bind (numpy's __getattr__ is not asked)
-        setattr(numpy, name.rpartition(".")[2], module)
+        # what ``import parent.<name>`` would bind (the parent's module __getattr__ is not asked)
+        setattr(parent, name.rpartition(".")[2], module)
         return True
     except Exception:  # noqa: BLE001 - an optimisation only: never stop a run
         sys.modules.pop(name, None)
