@@ -216,7 +216,10 @@ def _main(args: argparse.Namespace) -> int:
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
         _prestart(args)
-        kind = _special_kind(args.config)
+        from mbus_framework.startup import collector_paused
+
+        with collector_paused():  # start-up: pydantic and the config models
+            kind = _special_kind(args.config)
         if kind == "campaign":
             from mbus_framework.campaigns.cli import run_from_cli
             from mbus_framework.pipeline import figure_workers
@@ -244,6 +247,8 @@ def _main(args: argparse.Namespace) -> int:
         if special is not None:
             print(special)
             return 0
+        with collector_paused():  # start-up: run_config's modules (scipy, the engine, the estimation)
+            import mbus_framework.pipeline.run  # noqa: F401
         result = run_config(args.config, args.overrides, args.out, progress=progress if progress is not None else False,
                             plots=False if args.no_plots else None, overwrite=args.overwrite)
         print(result.run_dir if args.quiet else result.summary())

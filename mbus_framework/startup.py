@@ -15,10 +15,13 @@ process-local and applied by the ``mbus-run`` command only, never on ``import mb
 """
 from __future__ import annotations
 
+import gc
 import importlib
 import inspect
 import re
 import sys
+from contextlib import contextmanager
+from typing import Iterator
 
 #: numpy submodules that ``from numpy import *`` loads and a run does not use.
 UNUSED_NUMPY = ("numpy.f2py", "numpy.testing", "numpy.polynomial", "numpy.ctypeslib", "numpy.rec", "numpy.char",
@@ -62,6 +65,23 @@ def _defer(name: str) -> bool:
     except Exception:  # noqa: BLE001 - an optimisation only: never stop a run
         sys.modules.pop(name, None)
         return False
+
+
+@contextmanager
+def collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off while the block runs (on again after, if it was).
+
+    Loading a run's modules creates some 10^5 long-lived objects (modules, classes, functions,
+    pydantic schemas) and next to no cyclic garbage, yet the collector runs about 190 times while
+    they load, each time walking the young objects: about 0.03 s of CPU. ``mbus-run`` pauses it
+    around its imports only; the fit and everything after run with the collector as usual."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 # --- scipy's docstring notes ------------------------------------------------------------------------

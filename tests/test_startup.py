@@ -1,4 +1,5 @@
-"""scipy's array-API docstring notes made cheap at ``mbus-run`` start-up (mbus_framework.startup).
+"""``mbus-run`` start-up (mbus_framework.startup): scipy's docstring notes made cheap, the
+garbage collector paused while the run's modules load.
 
 The reference is scipy's own path: every docstring ``xp_capabilities`` decorates parses, with
 scipy's numpydoc parser, to the same sections with and without the fast path (the See Also
@@ -16,7 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from mbus_framework.startup import _decorator_as_expected, insert_note
+import gc
+
+from mbus_framework.startup import _decorator_as_expected, collector_paused, insert_note
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,11 +102,16 @@ def test_mbus_run_applies_the_fast_path_and_library_use_does_not(tmp_path):
     code = f"""
 import json, sys
 from mbus_framework.cli import main
+import gc
+import mbus_framework.api as api
+assert "scipy" not in sys.modules
+run_config, enabled = api.run_config, []
+api.run_config = lambda *a, **k: enabled.append(gc.isenabled()) or run_config(*a, **k)
 status = main([{str(ROOT / "configs" / "potato.yaml")!r}, "-o", {str(run)!r}, "-q", "--no-plots"])
 from scipy._lib import _array_api
-print("\\n@@" + json.dumps([status, _array_api.FunctionDoc.__name__]))
+print("\\n@@" + json.dumps([status, _array_api.FunctionDoc.__name__, enabled, gc.isenabled()]))
 """
-    assert _run(code) == [0, "_NoteInserter"]
+    assert _run(code) == [0, "_NoteInserter", [True], True]  # the fit ran with the collector on
     code = f"""
 import json
 import numpy as np
@@ -164,3 +172,20 @@ def test_insert_note_into_a_docstring_as_written(section, notes):
     shown = inspect.cleandoc(insert_note(raw, note, section))
     assert shown == insert_note(inspect.cleandoc(raw), note, section).rstrip("\n")
     assert ("More.\n\n**Note**" in shown) == (section == "Extended Summary")
+
+
+def test_collector_paused_restores_the_collector():
+    assert gc.isenabled()
+    with collector_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(ValueError), collector_paused():
+        raise ValueError("a failed import")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with collector_paused():
+            pass
+        assert not gc.isenabled()  # it was off: left off
+    finally:
+        gc.enable()
