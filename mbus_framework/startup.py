@@ -86,8 +86,10 @@ def collector_paused() -> Iterator[None]:
 
 # --- scipy's docstring notes ------------------------------------------------------------------------
 
-#: a numpydoc section heading: a title line underlined by dashes, both as indented as the docstring
-_HEADING = re.compile(r"^([ \t]*)([A-Z][A-Za-z ]*?)[ \t]*\n\1-{3,}[ \t]*$", re.MULTILINE)
+#: a numpydoc section heading's underline: dashes to the end of a line (the title is the line above)
+_UNDERLINE = re.compile(r"---+[ \t]*$", re.MULTILINE)
+#: a section title (Parameters, See Also, Notes, ...)
+_TITLE = re.compile(r"[A-Z][A-Za-z ]*")
 #: the indentation of a docstring's second and later lines (the first is not indented)
 _INDENT = re.compile(r"\n([ \t]*)\S")
 
@@ -184,7 +186,7 @@ def insert_note(doc: str, note: str, section: str = "Notes") -> str:
 
     Notes: at the end of the Notes section, or in a new one before References or Examples (or at
     the end). Extended Summary: before the first section heading (or at the end)."""
-    headings = [(m.group(2), m.start(), m.group(1)) for m in _HEADING.finditer(doc)]
+    headings = _headings(doc)
     names = [name for name, _, _ in headings]
     if section == "Extended Summary":
         after = headings[:1]
@@ -202,3 +204,19 @@ def insert_note(doc: str, note: str, section: str = "Notes") -> str:
     parts = [doc[:at].rstrip(), note, doc[at:].lstrip("\n")]
     text = "\n\n".join(part for part in parts if part.strip())
     return text if parts[2].strip() else text + "\n"  # the docstring's own ending, or the note's
+
+
+def _headings(doc: str) -> list[tuple[str, int, str]]:
+    """(title, start of the title line, indentation) of each numpydoc section heading: a title
+    line, and under it a line of dashes, both as indented as the docstring."""
+    found = []
+    for m in _UNDERLINE.finditer(doc):
+        line = doc.rfind("\n", 0, m.start()) + 1
+        indent = doc[line:m.start()]
+        if line == 0 or indent.strip(" \t"):
+            continue
+        title_at = doc.rfind("\n", 0, line - 1) + 1
+        title = doc[title_at:line - 1].rstrip(" \t")
+        if title.startswith(indent) and _TITLE.fullmatch(title, len(indent)):
+            found.append((title[len(indent):], title_at, indent))
+    return found
