@@ -218,3 +218,12 @@ def test_png_and_svg_show_the_same_spec(tmp_path):
             assert s in texts
         if ax.get_legend():
             assert all(tx.get_text() in texts for tx in ax.get_legend().get_texts())
+
+
+def test_an_unknown_figure_format_is_one_line_naming_the_key(tmp_path, capsys):
+    from mbus_framework.cli import main
+
+    assert main([str(REPO / "configs" / "potato.yaml"), "-o", str(tmp_path / "run"), "-q", "--set",
+                 "output.figures=jpg"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "output.figures" in err and "svg" in err, err
