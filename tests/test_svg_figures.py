@@ -28,7 +28,6 @@ def parse(text: str) -> ET.Element:
 
 
 def axes_box(root: ET.Element, i: int = 0) -> tuple[float, float, float, float]:
-    rect = root.find(f".//{NS}clipPath/{NS}rect")
     rects = [c.find(NS + "rect") for c in root.iter(NS + "clipPath")]
     rect = rects[i]
     x, y, w, h = (float(rect.get(k)) for k in ("x", "y", "width", "height"))
