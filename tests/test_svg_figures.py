@@ -226,3 +226,19 @@ def test_an_unknown_figure_format_is_one_line_naming_the_key(tmp_path, capsys):
                  "output.figures=jpg"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "output.figures" in err and "svg" in err, err
+
+
+@pytest.mark.parametrize("lim", [(1.0, 1.0), (2.0, 1.0), (np.nan, 1.0), (-1.0, 10.0), (0.0, np.inf)])
+def test_unusable_limits_fall_back_to_the_data(lim):
+    x = np.linspace(1.0, 100.0, 50)
+    for scale in ("linear", "log"):
+        spec = FigureSpec((5, 3), [Panel([Item("line", x, x, color="#222222")], xscale=scale, yscale=scale,
+                                         xlim=lim, ylim=lim)])
+        root = parse(svg.render(spec))
+        (d,) = line_paths(root, "#222222")
+        pts = path_points(d)
+        x0, y0, x1, y1 = axes_box(root)
+        if lim[0] < lim[1] and np.isfinite(lim).all() and (scale == "linear" or lim[0] > 0):
+            continue  # a usable range: drawn as given
+        assert pts.shape == (50, 2) and np.all((pts[:, 0] >= x0) & (pts[:, 0] <= x1))
+        assert np.all((pts[:, 1] >= y0) & (pts[:, 1] <= y1))

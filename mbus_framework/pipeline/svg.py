@@ -36,7 +36,7 @@ class Scale:
         self.lo, self.hi, self.log, self.p0, self.p1 = lo, hi, log, p0, p1
         self.a = math.log10(lo) if log else lo
         b = math.log10(hi) if log else hi
-        self.k = (p1 - p0) / (b - self.a)
+        self.k = (p1 - p0) / (b - self.a) if b != self.a and math.isfinite(b - self.a) else 0.0
 
     def __call__(self, v: np.ndarray | float) -> np.ndarray:
         v = np.asarray(v, dtype=float)
@@ -46,7 +46,7 @@ class Scale:
         return self.p0 + (v - self.a) * self.k
 
     def inverse(self, p: np.ndarray | float) -> np.ndarray:
-        v = self.a + (np.asarray(p, dtype=float) - self.p0) / self.k
+        v = self.a + (np.asarray(p, dtype=float) - self.p0) / (self.k or 1.0)
         return 10.0**v if self.log else v
 
 
@@ -335,12 +335,20 @@ def _axis_ticks(lo: float, hi: float, log: bool, length: float) -> tuple[np.ndar
     return ticks, minor, [tick_label(float(v), step or 1.0) for v in ticks]
 
 
+def _usable(lim: tuple[float, float], items: Sequence[Item], axis: str, log: bool) -> tuple[float, float]:
+    """``lim`` where it is a finite, increasing range (positive on a log axis), else the data's."""
+    lo, hi = float(lim[0]), float(lim[1])
+    if math.isfinite(lo) and math.isfinite(hi) and hi > lo and (lo > 0 or not log):
+        return lo, hi
+    return limits(data_limits(items, axis, log), log)
+
+
 def _panel(p: Panel, box: tuple[float, float, float, float], xlim: tuple[float, float],
            show_x: bool, ident: str) -> str:
     x0, y0, x1, y1 = box
-    ylim = p.ylim or limits(data_limits(p.items, "y", p.yscale == "log"), p.yscale == "log")
-    if p.yscale == "log" and ylim[0] <= 0:
-        ylim = limits(data_limits(p.items, "y", True), True)
+    xlim = _usable(xlim, p.items, "x", p.xscale == "log")
+    ylim = _usable(p.ylim or limits(data_limits(p.items, "y", p.yscale == "log"), p.yscale == "log"), p.items, "y",
+                   p.yscale == "log")
     sx = Scale(*xlim, p.xscale == "log", x0, x1)
     sy = Scale(*ylim, p.yscale == "log", y1, y0)
     fs = FONT * PT
