@@ -73,7 +73,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, metavar="S", help="campaigns: seconds to wait for the scheduler and its first worker (default 15)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the run in OUTDIR (and an existing calibration.output file)")
-    p.add_argument("--no-plots", action="store_true", help="do not draw figures (PNGs; report.html without plots)")
+    p.add_argument("--no-plots", action="store_true", help="do not draw figures (report.html without plots)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the output folder")
     return p
 
@@ -182,10 +182,24 @@ def _prestart(args: argparse.Namespace) -> None:
     defer_unused_numpy()  # imports numpy; before scipy loads (numpy.f2py, .testing, ... about 0.1 s of CPU)
     defer_unused_scipy()  # scipy.spatial, which scipy.optimize imports for shgo (about 0.04 s)
     cheap_scipy_notes()  # before scipy.special, .fft, .linalg, .optimize load (about 0.15 s of CPU)
-    if not (args.no_plots or args.study or args.compare_models or args.design_excitation):
+    if not (args.no_plots or args.study or args.compare_models or args.design_excitation) and _png_figures(args):
         from mbus_framework.pipeline import figure_workers
 
         figure_workers.prestart()
+
+
+def _png_figures(args: argparse.Namespace) -> bool:
+    """True when the config (or a ``--set output.figures=...``) asks for PNG figures, drawn by
+    the forked helpers; the default SVG figures are drawn in this process and need none."""
+    from mbus_framework.pipeline.config import config_mapping_or_none
+
+    output = (config_mapping_or_none(args.config) or {}).get("output")
+    fmt = output.get("figures", "svg") if isinstance(output, dict) else "svg"
+    for item in args.overrides:
+        key, _, value = item.partition("=")
+        if key.strip() == "output.figures":
+            fmt = value.strip()
+    return fmt == "png"
 
 
 @contextmanager

@@ -156,7 +156,9 @@ def test_result_load_rebuilds_the_figures_arrays(tmp_path):
     assert loaded.document == json.loads((tmp_path / "run" / "result.json").read_text())
     np.testing.assert_allclose(loaded.data.yhat, r.data.yhat, rtol=0, atol=1e-12 * np.abs(r.data.y).max())
     assert len(loaded.data.trace) == len(r.data.trace) > 0
-    assert "<img" in loaded.report_html() and "<img" not in loaded.report_html(plots=False)
+    assert "<svg" in loaded.report_html() and "<img" not in loaded.report_html()
+    assert "<img" in loaded.report_html(figures="png")
+    assert "<svg" not in loaded.report_html(plots=False) and "<img" not in loaded.report_html(plots=False)
     with pytest.raises(DataError, match="no result.json"):
         mbus.Result.load(tmp_path)
 

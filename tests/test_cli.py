@@ -103,9 +103,9 @@ def test_result_json_schema(potato_run):
 
 def test_run_folder_contents(potato_run):
     _, out = potato_run
-    for name in ("measurement.csv", "measurement.json", "result.json", "fit.png", "config.yaml"):
+    for name in ("measurement.csv", "measurement.json", "result.json", "fit.svg", "config.yaml"):
         assert (out / name).is_file(), name
-    assert (out / "fit.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "fit.svg").read_bytes()[:5] == b"<svg "
     data = np.loadtxt(out / "measurement.csv", delimiter=",", skiprows=1)
     assert (out / "measurement.csv").read_text().splitlines()[0] == "t,u,y"
     assert data.shape == (5000, 3)
@@ -336,7 +336,7 @@ def test_quiet_prints_only_the_output_folder(tmp_path, capsys):
     assert code == 0
     assert out.strip() == str(tmp_path / "q")
     assert err == ""
-    assert (tmp_path / "q" / "fit.png").is_file()
+    assert (tmp_path / "q" / "fit.svg").is_file()
 
 
 def test_default_output_folder_is_timestamped_under_runs(tmp_path, capsys, monkeypatch):
@@ -348,7 +348,7 @@ def test_default_output_folder_is_timestamped_under_runs(tmp_path, capsys, monke
     assert folder.parent == Path("runs")
     assert folder.name.endswith("-small")
     assert (tmp_path / folder / "result.json").is_file()
-    assert not (tmp_path / folder / "fit.png").exists()
+    assert not (tmp_path / folder / "fit.svg").exists()
     code, out2, _ = run(capsys, cfg, "-q", "--no-plots")
     assert code == 0 and out2.strip() != out.strip()  # a second run never overwrites the first
 

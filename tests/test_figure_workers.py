@@ -21,7 +21,7 @@ from mbus_framework.pipeline.figures import FIGURES, plain_log_label
 
 ROOT = Path(__file__).resolve().parents[1]
 POTATO = ROOT / "configs" / "potato.yaml"
-FAST = ["--set", "excitation.options.n_samples=1500", "--set", "model.options.n_elements=4"]
+FAST = ["--set", "excitation.options.n_samples=1500", "--set", "model.options.n_elements=4", "--set", "output.figures=png"]
 LINUX = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the helpers fork on Linux only")
 
 _RUN = """

@@ -1,5 +1,5 @@
 """Imports follow use (issue 24): a single run loads neither the campaign machinery (Dask) nor the
-analyses' libraries (scikit-learn, statsmodels, pandas); matplotlib only when it plots;
+analyses' libraries (scikit-learn, statsmodels, pandas); matplotlib only when it plots PNGs;
 ``mbus-run --help`` loads nothing numerical and ``--list-plugins`` no plugin's run-time
 dependencies. A simulated potato run needs neither scipy.signal nor scipy.stats (mbus has its own
 Welch spectrum and shift register, and uses scipy.special for quantiles); transducer filters
@@ -74,11 +74,37 @@ def test_plugin_list_imports_no_plugin_runtime_dependencies():
     assert _loaded(modules, PLUGIN_LIST) == []
 
 
+_FORKS = """
+import json, os, sys
+forks = []
+_fork = os.fork
+def fork():
+    forks.append(1)
+    return _fork()
+os.fork = fork
+from mbus_framework.cli import main
+status = main(sys.argv[1:])
+print("\\n@@MODULES@@" + json.dumps([status, sorted(sys.modules) + [f"@forks={len(forks)}"]]))
+"""
+
+
+def test_single_run_with_default_svg_figures_imports_no_matplotlib_and_forks_nothing(tmp_path):
+    """The default figures are SVG drawn in the run's own process: no matplotlib, no helper forked."""
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], _FORKS)
+    assert status == 0
+    assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.svg").is_file()
+    assert not list((tmp_path / "run").glob("*.png"))
+    assert _loaded(modules, ("matplotlib", *NEVER, "scipy.signal", "scipy.stats", *UNUSED, *OTHER_TOOLS)) == []
+    assert "@forks=0" in modules
+
+
 @pytest.mark.parametrize("helpers", ["1", "0"])
 def test_single_run_with_plots_imports_only_what_it_uses(tmp_path, helpers):
-    """With the forked figure helpers (Linux) the run's own process never imports matplotlib;
-    drawing in process (``MBUS_FIGURE_WORKERS=0``) goes through the Agg canvas, not pyplot."""
-    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q"], env={"MBUS_FIGURE_WORKERS": helpers})
+    """PNG figures (``output.figures: png``): with the forked figure helpers (Linux) the run's own
+    process never imports matplotlib; drawing in process (``MBUS_FIGURE_WORKERS=0``) goes
+    through the Agg canvas, not pyplot."""
+    status, modules = _modules([str(POTATO), "-o", str(tmp_path / "run"), "-q", "--set", "output.figures=png"],
+                               env={"MBUS_FIGURE_WORKERS": helpers})
     assert status == 0
     assert (tmp_path / "run" / "report.html").is_file() and (tmp_path / "run" / "fit.png").is_file()
     assert _loaded(modules, (*NEVER, "scipy.signal", "scipy.stats", *UNUSED, *OTHER_TOOLS)) == []

@@ -1,6 +1,6 @@
-"""report.html: self-contained (images are data URIs that decode, no external resource), the
-summary tables, warnings in plain words, the figures; opened in a real headless Chromium when
-one is installed. The residual correlations are checked against statsmodels."""
+"""report.html: self-contained (figures inline SVG by default, PNG data URIs that decode with
+``output.figures: png``, no external resource), the summary tables, warnings in plain words, the
+figures; opened in a real headless Chromium when one is installed. The residual correlations are checked against statsmodels."""
 from __future__ import annotations
 
 import base64
@@ -10,6 +10,7 @@ import os
 import shutil
 import struct
 import subprocess
+import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -70,7 +71,35 @@ def plotted_run(tmp_path_factory) -> Path:
     return out
 
 
-def test_report_is_self_contained_with_figures_and_tables(plotted_run):
+@pytest.fixture(scope="module")
+def png_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("report_png") / "run"
+    assert main([str(RECORDED), "-o", str(out), "-q", "--set", "output.figures=png"]) == 0
+    return out
+
+
+def test_report_holds_the_svg_figures_inline(plotted_run):
+    """The default figures: one inline ``<svg>`` per figure, each the run folder's .svg file
+    (valid XML), no image data URI; result.json names the .svg files."""
+    text = (plotted_run / "report.html").read_text(encoding="utf-8")
+    page = Page(text)
+    assert_self_contained(page)
+    assert page.all("img") == [] and "data:image" not in text
+    assert len(page.all("svg")) == FIGURE_COUNT
+    result = json.loads((plotted_run / "result.json").read_text())
+    assert not list(plotted_run.glob("*.png"))
+    for key in ("fit_plot", "correlation_plot", "frequency_response_plot", "excitation_plot", "convergence_plot",
+                "dispersion_plot"):
+        svg = (plotted_run / result["files"][key]).read_text(encoding="utf-8")
+        assert result["files"][key].endswith(".svg") and svg.startswith("<svg")
+        root = ET.fromstring(svg)
+        assert root.tag == "{http://www.w3.org/2000/svg}svg" and int(root.get("width")) >= 500
+        assert svg[4:] in text  # the same drawing, inline
+    assert len(page.all("table")) >= 5 and "Measured and predicted output" in page.plain
+
+
+def test_report_is_self_contained_with_figures_and_tables(png_run):
+    plotted_run = png_run
     text = (plotted_run / "report.html").read_text(encoding="utf-8")
     page = Page(text)
     assert_self_contained(page)
@@ -94,9 +123,9 @@ def test_report_without_plots_keeps_the_tables(tmp_path):
     assert main([str(RECORDED), "-o", str(tmp_path / "run"), "-q", "--no-plots"]) == 0
     page = Page((tmp_path / "run" / "report.html").read_text(encoding="utf-8"))
     assert_self_contained(page)
-    assert page.all("img") == [] and "Figures were not drawn" in page.plain
+    assert page.all("img") == [] and page.all("svg") == [] and "Figures were not drawn" in page.plain
     assert len(page.all("table")) >= 5
-    assert not list((tmp_path / "run").glob("*.png"))
+    assert not list((tmp_path / "run").glob("*.png")) and not list((tmp_path / "run").glob("*.svg"))
 
 
 def test_warnings_are_listed_in_plain_words(tmp_path):
@@ -196,7 +225,7 @@ def test_report_opens_in_headless_chromium(plotted_run, tmp_path):
     dom = subprocess.run([*common, "--dump-dom", url], capture_output=True, text=True, timeout=120, env=env)
     assert dom.returncode == 0, dom.stderr[-2000:]
     page = Page(dom.stdout)
-    assert len(page.all("img")) == FIGURE_COUNT and len(page.all("table")) >= 5
+    assert len(page.all("svg")) == FIGURE_COUNT and len(page.all("table")) >= 5
     shot = tmp_path / "report.png"
     subprocess.run([*common, "--window-size=1200,6000", f"--screenshot={shot}", url], capture_output=True,
                    timeout=120, env=env, check=True)

@@ -233,9 +233,13 @@ class Result:
         """Parameters and cost per iteration of the winning start (Fig. 3.8)."""
         return self._plot("convergence", fig)
 
-    def report_html(self, plots: bool = True) -> str:
-        """The self-contained report page (what ``report.html`` holds)."""
-        pngs = _figures.render_all(self._data()) if plots else None
+    def report_html(self, plots: bool = True, figures: str = "svg") -> str:
+        """The self-contained report page (what ``report.html`` holds): ``figures`` ``svg``
+        (inline, no matplotlib) or ``png`` (matplotlib, data URIs)."""
+        if figures not in ("svg", "png"):
+            raise ValueError(f"figures: expected 'svg' or 'png', got {figures!r}")
+        pngs = None if not plots else (_figures.render_svg(self._data()) if figures == "svg"
+                                       else _figures.render_all(self._data()))
         config = self.run_dir / "config.yaml" if self.run_dir else None
         text = config.read_text(encoding="utf-8") if config is not None and config.is_file() else None
         return report_html(self.document, pngs, text)

@@ -167,7 +167,9 @@ class OutputConfig(_Strict):
     """``output``: where and what to write."""
 
     directory: str = Field("runs", description="parent of timestamped run folders (relative to the CWD)")
-    plots: bool = Field(True, description="write PNG figures")
+    plots: bool = Field(True, description="write the run's figures")
+    figures: Literal["svg", "png"] = Field("svg", description="figure format: svg (drawn in the run's process, "
+                                           "no matplotlib) or png (matplotlib)")
 
 
 class RunConfig(_Strict):

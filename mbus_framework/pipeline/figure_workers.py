@@ -1,4 +1,6 @@
-"""A run's figures drawn beside the fit, by two forked helper processes (Linux).
+"""A run's PNG figures (``output.figures: png``) drawn beside the fit, by two forked helper
+processes (Linux). The default SVG figures need none: they are drawn in the run's process
+(:mod:`~mbus_framework.pipeline.svg`).
 
 Importing matplotlib and drawing six figures costs about as much CPU as the rest of a run.
 ``mbus-run`` forks a helper as it starts (:func:`prestart`; a run from Python forks it in

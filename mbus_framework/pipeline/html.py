@@ -1,7 +1,7 @@
 """Self-contained HTML reports from a few primitives: page, section, table, figure, warnings.
 
-Everything a page needs is inside the file: the style sheet is inline and figures are PNG data
-URIs, so a report opens offline, can be mailed or attached to a lab notebook, and loads nothing
+Everything a page needs is inside the file: the style sheet is inline and figures are inline
+``<svg>`` elements or PNG data URIs, so a report opens offline, can be mailed or attached to a lab notebook, and loads nothing
 from the network. Every primitive returns an HTML string; text is escaped, HTML passed in as
 :class:`Html` is not.
 
@@ -29,7 +29,7 @@ margin-top:2rem}.subtitle{color:#57606a;margin:0 0 1rem}
 table{border-collapse:collapse;margin:.6rem 0;font-size:.92rem}caption{text-align:left;color:#57606a;
 padding:.2rem 0}th,td{border:1px solid #d0d7de;padding:.25rem .6rem;text-align:left}
 th{background:#f6f8fa}td.num{text-align:right;font-variant-numeric:tabular-nums}
-figure{margin:1rem 0}figure img{max-width:100%;height:auto;border:1px solid #eaeef2}
+figure{margin:1rem 0}figure img,figure svg{max-width:100%;height:auto;border:1px solid #eaeef2}
 figcaption{color:#57606a;font-size:.9rem}
 .warnings{border-left:4px solid #d4a72c;background:#fff8c5;padding:.5rem 1rem;margin:.6rem 0}
 .warnings.ok{border-color:#2da44e;background:#dafbe1}.warnings li{margin:.3rem 0}
@@ -98,10 +98,14 @@ def png_bytes(fig: "Figure", dpi: int = 100) -> bytes:
     return buf.getvalue()
 
 
-def image(png: bytes, alt: str, caption: str | None = None) -> Html:
-    """A ``<figure>`` holding PNG bytes as a base64 data URI."""
-    data = base64.b64encode(png).decode("ascii")
+def image(content: bytes, alt: str, caption: str | None = None) -> Html:
+    """A ``<figure>`` holding an image: SVG bytes (``<svg ...``) inline, with ``alt`` as its
+    accessible label; PNG bytes as a base64 data URI."""
     cap = f"<figcaption>{escape(caption)}</figcaption>" if caption else ""
+    if content.lstrip()[:4] == b"<svg":
+        svg = content.decode("utf-8").replace("<svg ", f'<svg role="img" aria-label="{escape(alt)}" ', 1)
+        return Html(f"<figure>{svg}{cap}</figure>")
+    data = base64.b64encode(content).decode("ascii")
     return Html(f'<figure><img alt="{escape(alt)}" src="data:image/png;base64,{data}">{cap}</figure>')
 
 

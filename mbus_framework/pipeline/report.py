@@ -1,4 +1,4 @@
-"""Human-facing output of a run: the printed summary and the PNG figures (report.html is
+"""Human-facing output of a run: the printed summary and the figure files (SVG or PNG) (report.html is
 :mod:`~mbus_framework.pipeline.run_report`)."""
 from __future__ import annotations
 
@@ -94,22 +94,27 @@ def summary_text(result: dict[str, Any], run_dir: Path | None = None) -> str:
     return "\n".join(lines)
 
 
-def write_figures(run_dir: Path, data: "FitData", dpi: int = 100,
-                  helpers: "Helpers | None" = None) -> tuple[dict[str, str], dict[str, bytes]]:
-    """Draw every figure once (by the forked ``helpers`` when given,
-    :mod:`~mbus_framework.pipeline.figure_workers`; each PNG is written as it arrives), write each
-    as a PNG in the run folder; returns the result.json ``files`` entries (``<name>_plot``, in
-    :data:`~mbus_framework.pipeline.figures.FIGURES` order) and the PNG bytes (for report.html)."""
-    from mbus_framework.pipeline.figures import FIGURES, render_all
+def write_figures(run_dir: Path, data: "FitData", dpi: int = 100, helpers: "Helpers | None" = None,
+                  fmt: str = "png") -> tuple[dict[str, str], dict[str, bytes]]:
+    """Draw every figure once and write it into the run folder: ``fmt`` ``svg`` here
+    (:mod:`~mbus_framework.pipeline.svg`, no matplotlib), ``png`` by matplotlib (by the forked
+    ``helpers`` when given, :mod:`~mbus_framework.pipeline.figure_workers`; each PNG is written
+    as it arrives). Returns the result.json ``files`` entries (``<name>_plot``, in
+    :data:`~mbus_framework.pipeline.figures.FIGURES` order) and the files' bytes (for report.html)."""
+    from mbus_framework.pipeline.figures import file_name, render_all, render_svg
     from mbus_framework.pipeline.storage import atomic_write_bytes
 
-    def save(name: str, png: bytes) -> None:
-        atomic_write_bytes(Path(run_dir) / FIGURES[name][1], png)
+    def save(name: str, content: bytes) -> None:
+        atomic_write_bytes(Path(run_dir) / file_name(name, fmt), content)
 
-    if helpers is not None:
-        pngs = helpers.render(data, dpi, save)
+    if fmt == "svg":
+        drawn = render_svg(data)
+        for name, svg in drawn.items():
+            save(name, svg)
+    elif helpers is not None:
+        drawn = helpers.render(data, dpi, save)
     else:
-        pngs = render_all(data, dpi)
-        for name, png in pngs.items():
+        drawn = render_all(data, dpi)
+        for name, png in drawn.items():
             save(name, png)
-    return {f"{name}_plot": FIGURES[name][1] for name in pngs}, pngs
+    return {f"{name}_plot": file_name(name, fmt) for name in drawn}, drawn

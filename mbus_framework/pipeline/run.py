@@ -189,10 +189,13 @@ def estimate(c: Components, m: Measurement, designed: Waveform | None = None,
     return RunOutcome(None, c, m, fit, result, problem, designed)
 
 
-def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helpers: Helpers | None = None) -> None:
-    """trace.csv and result.json, then the figures (PNG; drawn by ``helpers`` when given, which
-    get the data first and draw while this process writes) and report.html; result.json is
-    written before any figure is drawn here, so a plotting failure cannot lose the estimates."""
+def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helpers: Helpers | None = None,
+                  fmt: str | None = None) -> None:
+    """trace.csv and result.json, then the figures (``fmt``, default the config's
+    ``output.figures``: SVG drawn here, or PNG drawn by ``helpers`` when given, which get the data
+    first and draw while this process writes) and report.html; result.json is written before any
+    figure is drawn, so a plotting failure cannot lose the estimates."""
+    fmt = fmt or outcome.components.config.output.figures
     result, fit = outcome.result, outcome.fit
     data = outcome.fit_data() if plots else None
     if data is not None and helpers is not None:
@@ -205,7 +208,7 @@ def write_outputs(run_dir: Path, outcome: RunOutcome, plots: bool = True, helper
     if data is not None:
         from mbus_framework.pipeline.report import write_figures
 
-        files, pngs = write_figures(run_dir, data, helpers=helpers)
+        files, pngs = write_figures(run_dir, data, helpers=helpers, fmt=fmt)
         result["files"].update(files)
     result["files"]["report"] = REPORT_FILE
     atomic_write_json(run_dir / "result.json", result)
@@ -247,9 +250,10 @@ def execute(
     c = load_components(config_path, overrides, source, registry)
     designed = designed_waveform(c)
     plots = plots if plots is not None else c.config.output.plots
-    # forked now (before the folder's lock is taken), the figure helpers import matplotlib while
-    # this process acquires and fits; closing them ends them if the run stops early
-    with (figure_workers.start() if plots else None) or nullcontext() as helpers:
+    # PNG figures: forked now (before the folder's lock is taken), the figure helpers import
+    # matplotlib while this process acquires and fits; closing them ends them if the run stops early
+    png = plots and c.config.output.figures == "png"
+    with (figure_workers.start() if png else None) or nullcontext() as helpers:
         folder = RunFolder.create(out_dir, parent=c.config.output.directory, source=c.source, overwrite=overwrite)
         with folder, limits.plugin_failures(c.registry, c.source):
             run_dir = folder.path

@@ -1,6 +1,6 @@
 """``report.html`` of a run: one self-contained page to open, share or attach to a lab notebook.
 
-Built from the result.json document, the figures' PNG bytes (:mod:`~mbus_framework.pipeline.figures`)
+Built from the result.json document, the figures' SVG (inline) or PNG bytes (:mod:`~mbus_framework.pipeline.figures`)
 and the validated config, with the primitives of :mod:`~mbus_framework.pipeline.html`. The tables
 (:func:`estimate_tables`) are also what a Python :class:`~mbus_framework.api.Result` shows in a
 notebook.
@@ -98,8 +98,8 @@ def _scalars(mapping: dict[str, Any]) -> dict[str, Any]:
 
 def report_html(result: dict[str, Any], figures: dict[str, bytes] | None, config_text: str | None = None,
                 files: list[str] | None = None) -> str:
-    """The whole page. ``figures`` maps figure names of :data:`FIGURES` to PNG bytes (None: plots
-    were switched off)."""
+    """The whole page. ``figures`` maps figure names of :data:`FIGURES` to SVG or PNG bytes
+    (None: plots were switched off)."""
     model = result["model"]
     title = result.get("title") or str(result.get("config") or "mbus run")
     subtitle = (f"model {model['name']} ({model.get('n_states', '?')} states), solver {result['solver']['name']}, "
