@@ -1,23 +1,29 @@
-"""Start-up of ``mbus-run``: numpy's submodules that no run uses load only if used; scipy's docstring notes are cheap.
+"""Start-up of ``mbus-run``: what a run does not use is not loaded, and loading is cheaper.
 
-scipy (1.15 and later) builds its array-API namespace with ``from numpy import *``, which imports
-every numpy submodule named in ``numpy.__all__``: ``numpy.f2py`` (and with it charset_normalizer),
-``numpy.testing`` (and unittest), ``numpy.polynomial``, ``numpy.ctypeslib``, ``numpy.rec``,
-``numpy.char`` and ``numpy.strings`` among them, about 0.1 s of CPU at every start-up for modules
-a run does not use. :func:`defer_unused_numpy` registers them as lazy modules
-(:class:`importlib.util.LazyLoader`): the names exist, and a module runs on its first attribute
-access, so code that does use one gets the real module. (``numpy.ma``, ``numpy.random``,
-``numpy.fft``, ``numpy.linalg`` and ``numpy.typing`` are used: ``np.median`` asks ``numpy.ma``.)
+All of it is process-local and applied by the ``mbus-run`` command only (``cli._prestart`` and
+``cli._main``), never on ``import mbus_framework``; each part falls back to the usual behaviour
+when numpy's or scipy's internals are not what it expects.
 
-:func:`cheap_scipy_notes` makes the notes scipy adds to about 270 docstrings at import cheap (the
-same note in the same section, without re-parsing each docstring). Both are
-process-local and applied by the ``mbus-run`` command only, never on ``import mbus_framework``.
+- :func:`defer_unused_numpy`: scipy (1.15 and later) builds its array-API namespace with
+  ``from numpy import *``, which imports every numpy submodule in ``numpy.__all__``:
+  ``numpy.f2py`` (and with it charset_normalizer), ``numpy.testing`` (and unittest),
+  ``numpy.polynomial``, ``numpy.ctypeslib``, ``numpy.rec``, ``numpy.char`` and ``numpy.strings``,
+  about 0.1 s of CPU. They become lazy modules (:class:`importlib.util.LazyLoader`): the names
+  exist, and a module runs on its first attribute access, so code that uses one gets the real
+  module. (``numpy.ma``, ``.random``, ``.fft``, ``.linalg`` and ``.typing`` are used: ``np.median``
+  asks ``numpy.ma``.)
+- :func:`defer_unused_scipy`: the same for scipy.spatial, which scipy.optimize imports for
+  ``shgo`` only (with scipy.constants, about 0.04 s).
+- :func:`cheap_scipy_notes`: scipy's decorators add a note to about 270 docstrings at import by
+  re-parsing each one with numpydoc (about 0.1 s); the same note goes into the same section
+  without the parse.
+- :func:`collector_paused`: no cyclic garbage collection while the run's modules load (about
+  0.02 s).
 """
 from __future__ import annotations
 
 import gc
 import importlib
-import inspect
 import re
 import sys
 from contextlib import contextmanager
