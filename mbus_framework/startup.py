@@ -26,6 +26,7 @@ import gc
 import importlib
 import re
 import sys
+import textwrap
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -109,13 +110,15 @@ def cheap_scipy_notes() -> list[str]:
     """Let scipy's decorators add their docstring notes without re-parsing each docstring.
 
     scipy (1.15 and later) decorates about 200 functions of scipy.special, .fft, .linalg and
-    .optimize with ``xp_capabilities`` (an array-API note in the Notes section), and 70 functions
-    of scipy.linalg with ``_apply_over_batch`` (a note on batched arguments after the summary).
-    Both parse the docstring with numpydoc's ``FunctionDoc`` at import, only to add the note and
-    render the docstring anew: about 0.15 s of CPU at every start-up of a run. This swaps the
-    ``FunctionDoc`` those two modules use for :class:`_NoteInserter`, which puts the same note
-    in the same section of the docstring as written (``help()`` still shows it), and hands
-    anything else asked of it (scipy's ``rng`` parameter rewrite) to the real ``FunctionDoc``.
+    .optimize with ``xp_capabilities`` (an array-API note in the Notes section), 70 functions
+    of scipy.linalg with ``_apply_over_batch`` (a note on batched arguments after the summary)
+    and a few of scipy.optimize with ``_transition_to_rng`` (a new description of the ``rng``
+    parameter). Each parses the docstring with numpydoc's ``FunctionDoc`` at import, only to make
+    that change and render the docstring anew: about 0.15 s of CPU at every start-up of a run.
+    This swaps the ``FunctionDoc`` of the decorators' two modules for :class:`_NoteInserter`,
+    which makes the same change in the docstring as written (``help()`` shows it; the
+    ``rng`` rewrite reads only the Parameters section) and hands anything else asked of it to
+    the real ``FunctionDoc``.
 
     Process-local: applied by the ``mbus-run`` command before scipy's submodules load, never by
     ``import mbus_framework``. Returns the modules changed; a module whose decorator is not the one
@@ -148,15 +151,19 @@ def _decorator_as_expected(namespace: dict, factory: str, section: str, docscrap
 
 
 class _NoteInserter:
-    """What the decorators ask of ``FunctionDoc(f)``: ``doc[section]`` (a list a note is appended
-    to) and ``str(doc)`` (a header line, then the docstring with the notes). Anything else is
-    handed to scipy's ``FunctionDoc``, built then, with the notes so far."""
+    """What the decorators ask of ``FunctionDoc(f)``, without parsing the whole docstring:
+    ``doc[section]`` (a list a note is appended to), ``doc["Parameters"]`` (the parameters, whose
+    entries may be replaced: scipy's ``rng`` note) and ``str(doc)`` (a header line, then the
+    docstring with the notes and replaced entries). Anything else is handed to scipy's
+    ``FunctionDoc``, built then, with what was added so far."""
 
     SECTIONS = ("Notes", "Extended Summary")
 
     def __init__(self, func, *args, **kwargs):
         self._func, self._args, self._kwargs = func, args, kwargs
         self._added: dict[str, list[str]] = {}
+        self._params: list | None = None  # what doc["Parameters"] handed out, and as parsed
+        self._parsed: list = []
         self._full = None
 
     def _real(self):
@@ -166,11 +173,19 @@ class _NoteInserter:
             self._full = FunctionDoc(self._func, *self._args, **self._kwargs)
             for section, notes in self._added.items():
                 self._full[section] += notes
+            if self._params is not None:
+                self._full["Parameters"] = list(self._params)
         return self._full
 
     def __getitem__(self, key: str):
-        if self._full is None and key in self.SECTIONS and not self._args and not self._kwargs:
-            return self._added.setdefault(key, [])
+        if self._full is None and not self._args and not self._kwargs:
+            if key in self.SECTIONS and self._params is None:
+                return self._added.setdefault(key, [])
+            if key == "Parameters" and not self._added:
+                if self._params is None:
+                    self._parsed = _parameters(_getdoc(self._func))
+                    self._params = [param for param, _, _ in self._parsed]
+                return self._params
         return self._real()[key]
 
     def __setitem__(self, key: str, value) -> None:
@@ -179,11 +194,60 @@ class _NoteInserter:
     def __str__(self) -> str:
         if self._full is not None:
             return str(self._full)
+        if self._params is not None:
+            return "\n" + self._with_parameters()
         text = getattr(self._func, "__doc__", None) or ""
         for section, notes in self._added.items():
             for note in notes:
                 text = insert_note(text, note, section)
         return "\n" + text  # the decorators drop the first line (FunctionDoc's ``.. function::`` header)
+
+    def _with_parameters(self) -> str:
+        """The docstring (dedented, as scipy's rendering is) with the replaced parameter entries."""
+        if len(self._params) != len(self._parsed):
+            return str(self._real()).split("\n", 1)[1]
+        lines = _getdoc(self._func).split("\n")
+        for param, (parsed, first, last) in reversed(list(zip(self._params, self._parsed))):
+            if param is not parsed:
+                entry = [" : ".join(part for part in (param.name, param.type) if part)]
+                if param.desc and "".join(param.desc).strip():
+                    entry += ["    " + line for line in param.desc]  # scipy's rendering: four spaces
+                lines[first:last] = entry
+        return "\n".join(lines)
+
+
+def _getdoc(func) -> str:
+    import inspect
+
+    return inspect.getdoc(func) or ""
+
+
+def _parameters(doc: str) -> list:
+    """The Parameters section of a dedented numpydoc docstring as numpydoc reads it: [(Parameter,
+    first line, end line)] (the entry's lines, its trailing blank lines left out)."""
+    from scipy._lib._docscrape import Parameter
+
+    headings = _headings(doc)
+    names = [name for name, _, _ in headings]
+    if "Parameters" not in names:
+        return []
+    i = names.index("Parameters")
+    start = doc.count("\n", 0, headings[i][1]) + 2  # the line after the dashes
+    lines = doc.split("\n")
+    stop = doc.count("\n", 0, headings[i + 1][1]) if i + 1 < len(headings) else len(lines)
+    headers = [n for n in range(start, stop) if lines[n].strip() and not lines[n][0].isspace()]
+    found = []
+    for k, n in enumerate(headers):
+        end = headers[k + 1] if k + 1 < len(headers) else stop
+        while end > n + 1 and not lines[end - 1].strip():
+            end -= 1
+        header = lines[n].strip()
+        name, _, kind = header.partition(" : ") if " : " in header else (header, "", "")
+        desc = textwrap.dedent("\n".join(lines[n + 1:end])).split("\n") if end > n + 1 else []
+        while desc and not desc[0].strip():
+            desc.pop(0)
+        found.append((Parameter(name, kind, desc), n, end))
+    return found
 
 
 def insert_note(doc: str, note: str, section: str = "Notes") -> str:

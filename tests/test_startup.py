@@ -91,6 +91,9 @@ print("\\n@@" + json.dumps({
     "fft": float(np.max(np.abs(fft.irfft(fft.rfft(x), 5) - x))),
     "toeplitz": float(np.max(np.abs(linalg.solve_toeplitz(T[:, 0], x[:3]) - np.linalg.solve(T, x[:3])))),
     "lsq": fit.x.tolist(),
+    "rng": [inspect.getdoc(optimize.differential_evolution),
+            optimize.differential_evolution(lambda p: (p[0] - 0.3) ** 2, [(-1, 1)], rng=1, maxiter=30).x.tolist(),
+            str(inspect.signature(optimize.differential_evolution)).endswith("seed=None)")],
     "docs": [inspect.getdoc(f) for f in (special.ndtr, special.stdtrit, special.fdtrc, fft.rfft)],
     "batch": [inspect.getdoc(f) for f in (linalg.eig, linalg.svd, linalg.qr)],
     "expm": float(np.max(np.abs(linalg.expm(np.diag([0.0, 1.0])) - np.diag([1.0, np.e])))),
@@ -103,6 +106,10 @@ print("\\n@@" + json.dumps({
     assert got["fdtrc"] == pytest.approx(0.05, rel=1e-9)  # F-table: F(2, 10) 95 % point 4.1028
     assert got["fft"] < 1e-14 and got["toeplitz"] < 1e-14
     assert got["lsq"] == pytest.approx([1.0, -2.0], abs=1e-12)
+    doc, x, seed_keyword = got["rng"]  # scipy's rng rewrite, from the Parameters section alone
+    assert "rng : {None, int, `numpy.random.Generator`}, optional\n    If `rng` is passed by keyword" in doc
+    assert "legacy behavior for the argument `seed` applies" in doc and seed_keyword
+    assert x == pytest.approx([0.3], abs=1e-4)
     assert got["expm"] < 1e-14
     for doc in got["docs"]:
         assert "Array API Standard Support" in doc and "Notes\n-----" in doc
@@ -202,3 +209,23 @@ def test_collector_paused_restores_the_collector():
         assert not gc.isenabled()  # it was off: left off
     finally:
         gc.enable()
+
+
+def test_parameters_read_as_numpydoc_reads_them():
+    """The Parameters section read for scipy's ``rng`` rewrite equals numpydoc's reading, for
+    every public function of scipy.optimize and scipy.signal."""
+    from scipy import optimize, signal
+    from scipy._lib._docscrape import FunctionDoc
+
+    from mbus_framework.startup import _getdoc, _parameters
+
+    checked = 0
+    for module in (optimize, signal):
+        for name in module.__all__:
+            f = getattr(module, name)
+            if not callable(f) or isinstance(f, type):
+                continue
+            ours = [param for param, _, _ in _parameters(_getdoc(f))]
+            assert ours == list(FunctionDoc(f)["Parameters"]), f"{module.__name__}.{name}"
+            checked += bool(ours)
+    assert checked > 150
