@@ -24,7 +24,9 @@ POTATO = ROOT / "configs" / "potato.yaml"
 NEVER = ("mbus_framework.campaigns", "dask", "distributed", "sklearn", "statsmodels", "pandas")
 # Loaded by scipy's ``from numpy import *`` unless deferred (mbus_framework.startup): unused by a run.
 UNUSED = ("numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils",
-          "numpy.polynomial.polynomial")
+          "numpy.polynomial.polynomial",
+          # scipy.optimize's ``from scipy import spatial`` (for shgo), made lazy too: with it scipy.constants
+          "scipy.spatial._qhull", "scipy.spatial.transform", "scipy.constants")
 # Not needed by a simulated fit with the LM solver: CasADi (the collocation solver), python-control
 # (state-space export), the studies and the analyses.
 OTHER_TOOLS = ("casadi", "control", "mbus_framework.studies", "mbus_framework.analysis", "mbus_framework.joint",
@@ -153,6 +155,30 @@ print("\\n@@MODULES@@" + json.dumps([int(not (deferred and callable(numpy.f2py.r
 """
     status, flags = _modules([], code)
     assert status == 0 and flags == {"False"}
+
+
+def test_deferred_scipy_spatial_is_the_real_module_when_used():
+    """scipy.spatial, made lazy at start-up, is not run by scipy.optimize's import but works (and
+    shgo, which uses it) as soon as something uses it."""
+    code = """
+import json, sys
+from mbus_framework.startup import defer_unused_numpy, defer_unused_scipy
+defer_unused_numpy()
+deferred = defer_unused_scipy()
+import numpy as np
+import scipy.optimize
+before = [m for m in ("scipy.spatial._qhull", "scipy.constants") if m in sys.modules]
+import scipy.spatial.distance
+from scipy.spatial import Delaunay
+d = float(scipy.spatial.distance.cdist(np.zeros((1, 2)), np.ones((1, 2)))[0, 0])
+tri = Delaunay(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+x = scipy.optimize.shgo(lambda x: (x[0] - 1) ** 2 + (x[1] + 0.5) ** 2, [(-2, 2), (-2, 2)]).x
+ok = deferred == ["scipy.spatial"] and abs(d - 2 ** 0.5) < 1e-15 and tri.simplices.shape == (1, 3) \\
+    and np.allclose(x, [1.0, -0.5], atol=1e-6)
+print("\\n@@MODULES@@" + json.dumps([int(not ok), before]))
+"""
+    status, before = _modules([], code)
+    assert status == 0 and before == set()
 
 
 def test_api_fit_imports_only_what_it_uses(tmp_path):
