@@ -64,7 +64,7 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
 from mbus_framework.estimation.local import LocalResult
 from mbus_framework.estimation.minima import near, region_around
 from mbus_framework.estimation.phases import explore
-from mbus_framework.estimation.poles import pole_candidates
+from mbus_framework.estimation.poles import identified_poles, pole_candidates
 from mbus_framework.estimation.problem import FitProblem, Progress, SearchTimeout
 from mbus_framework.estimation.routing import all_null, noise_dominated, null_cost, record_damping
 from mbus_framework.estimation.search_report import SearchReport, at_box_edge, stage_trace  # noqa: F401  (at_box_edge re-exported)
@@ -102,6 +102,7 @@ class _Search:
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
         self._spectrum = None
+        self._poles: np.ndarray | None = None
         self.routing: dict | None = None
         self.report = SearchReport("", {}, signal_bandwidth_hz=f_sig, bands_hz=[b.cutoff_hz for b in self.filters])
         self.report.noise = self.noise.as_dict()
@@ -183,9 +184,17 @@ class _Search:
     def pole_candidates(self) -> list[gs.Candidate]:
         """Starts matched to the record's subspace-identified poles (:mod:`.poles`)."""
         o = self.options
-        found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed)
+        found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed,
+                                identify=lambda _: self.record_poles())
         self.report.poles = {"candidates": [dict(zip(self.names, map(float, c.theta))) for c in found]}
         return found
+
+    def record_poles(self) -> np.ndarray:
+        """The record's subspace-identified poles (:func:`.poles.identified_poles`), identified
+        once per search: routing and the pole starts both use them."""
+        if self._poles is None:
+            self._poles = identified_poles(self.problem)
+        return self._poles
 
     def rings_unexplained(self) -> bool:
         """Every end so far null and the record's poles ring: pole starts first (:mod:`.routing`)."""
@@ -194,7 +203,7 @@ class _Search:
         costs = [float(e["cost"]) for e in self.report.starts if "cost" in e]
         if not all_null(costs, null, o.null_fraction) or noise_dominated(null, p.y.size, noise_var):
             return False
-        zeta = record_damping(p)
+        zeta = record_damping(p, self.record_poles())
         self.routing = {"null_cost": null, "least_damping_ratio": zeta, "before_scan": zeta < o.light_damping}
         return zeta < o.light_damping
 
