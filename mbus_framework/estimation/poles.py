@@ -456,18 +456,28 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
     return Candidate(th, cost, "record poles")
 
 
+def identified_poles(problem) -> np.ndarray:
+    """:func:`record_poles` of the record at the model's order; empty when the model has no
+    states or identification fails."""
+    order = getattr(problem.model, "n_states", 0)
+    if not getattr(problem.model, "has_state_space", True) or not order:
+        return np.empty(0, complex)
+    try:
+        return record_poles(problem.u, problem.y, int(order))
+    except (np.linalg.LinAlgError, ValueError, MemoryError):
+        return np.empty(0, complex)
+
+
 def pole_candidates(problem, space: SearchSpace, template: np.ndarray, limit: int = 3,
-                    seed: int = 0) -> list[Candidate]:
+                    seed: int = 0, identify=identified_poles) -> list[Candidate]:
     """Starts whose pole pattern matches the record's poles, best first (empty when the
     model's time scaling is not exact, a compensator filters the output, or no poles are
-    found)."""
+    found); ``identify(problem)`` gives the record's poles (:func:`identified_poles`, or a
+    search's poles identified once)."""
     if (not getattr(problem.model, "has_state_space", True) or not space.scaled or problem.output_filter is not None
             or not space.movable.any()):
         return []
-    try:
-        z = record_poles(problem.u, problem.y, problem.model.n_states)
-    except (np.linalg.LinAlgError, ValueError, MemoryError):
-        return []
+    z = identify(problem)
     if z.size == 0:
         return []
     out = []

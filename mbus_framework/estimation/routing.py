@@ -55,13 +55,16 @@ def least_damping(z: np.ndarray, dt: float) -> float:
     return float(np.min(-s.real / np.abs(s)))
 
 
-def record_damping(problem) -> float:
+def record_damping(problem, z: np.ndarray | None = None) -> float:
     """Least damping ratio of the record's poles identified at the model's order (inf when the
-    model has no states or identification fails)."""
+    model has no states or identification fails); ``z``: those poles when already identified
+    (:func:`~mbus_framework.estimation.poles.identified_poles`)."""
     order = getattr(problem.model, "n_states", 0)
     if not getattr(problem.model, "has_state_space", True) or not order:
         return np.inf
-    try:
-        return least_damping(record_poles(problem.u, problem.y, int(order)), problem.dt)
-    except (np.linalg.LinAlgError, ValueError, MemoryError):
-        return np.inf
+    if z is None:
+        try:
+            z = record_poles(problem.u, problem.y, int(order))
+        except (np.linalg.LinAlgError, ValueError, MemoryError):
+            return np.inf
+    return least_damping(z, problem.dt)

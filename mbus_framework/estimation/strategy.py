@@ -38,6 +38,7 @@ is abandoned, and the best minimum found so far is reported with a verdict that 
 budget and how to raise it. On an interactive terminal the progress line shows the
 evaluations, the time spent and the time left of the budget.
 
+The phases run in the order above (:func:`mbus_framework.estimation.phases.explore`).
 Everything tried is reported (:class:`SearchReport`), so result.json says what won and why.
 """
 from __future__ import annotations
@@ -62,7 +63,8 @@ from mbus_framework.estimation.exploration import (  # noqa: F401  (re-exported 
 )
 from mbus_framework.estimation.local import LocalResult
 from mbus_framework.estimation.minima import near, region_around
-from mbus_framework.estimation.poles import pole_candidates
+from mbus_framework.estimation.phases import explore
+from mbus_framework.estimation.poles import identified_poles, pole_candidates
 from mbus_framework.estimation.problem import FitProblem, Progress, SearchTimeout
 from mbus_framework.estimation.routing import all_null, noise_dominated, null_cost, record_damping
 from mbus_framework.estimation.search_report import SearchReport, at_box_edge, stage_trace  # noqa: F401  (at_box_edge re-exported)
@@ -100,6 +102,7 @@ class _Search:
         self.verdict: Verdict | None = None
         self.nfev = self.njev = 0
         self._spectrum = None
+        self._poles: np.ndarray | None = None
         self.routing: dict | None = None
         self.report = SearchReport("", {}, signal_bandwidth_hz=f_sig, bands_hz=[b.cutoff_hz for b in self.filters])
         self.report.noise = self.noise.as_dict()
@@ -181,9 +184,17 @@ class _Search:
     def pole_candidates(self) -> list[gs.Candidate]:
         """Starts matched to the record's subspace-identified poles (:mod:`.poles`)."""
         o = self.options
-        found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed)
+        found = pole_candidates(self.problem, self.space, self.template(), limit=o.pole_starts, seed=o.seed,
+                                identify=lambda _: self.record_poles())
         self.report.poles = {"candidates": [dict(zip(self.names, map(float, c.theta))) for c in found]}
         return found
+
+    def record_poles(self) -> np.ndarray:
+        """The record's subspace-identified poles (:func:`.poles.identified_poles`), identified
+        once per search: routing and the pole starts both use them."""
+        if self._poles is None:
+            self._poles = identified_poles(self.problem)
+        return self._poles
 
     def rings_unexplained(self) -> bool:
         """Every end so far null and the record's poles ring: pole starts first (:mod:`.routing`)."""
@@ -192,7 +203,7 @@ class _Search:
         costs = [float(e["cost"]) for e in self.report.starts if "cost" in e]
         if not all_null(costs, null, o.null_fraction) or noise_dominated(null, p.y.size, noise_var):
             return False
-        zeta = record_damping(p)
+        zeta = record_damping(p, self.record_poles())
         self.routing = {"null_cost": null, "least_damping_ratio": zeta, "before_scan": zeta < o.light_damping}
         return zeta < o.light_damping
 
@@ -354,7 +365,7 @@ def search(
     if progress:
         progress.start("global search (starts)", total=o.n_starts)
     try:
-        accepted = _explore(s, o, seeds)
+        accepted = explore(s, o, seeds)
     except SearchTimeout:
         accepted = False
     if progress:
@@ -393,99 +404,6 @@ def search(
     s.report.wall_time_s = time.perf_counter() - t0
     s.report.cpu_time_s = clock.elapsed()
     return final, s.report, s.nfev, s.njev
-
-
-def _explore(s: _Search, o: StrategyOptions, seeds: list[tuple[str, np.ndarray]]) -> bool:
-    """Steps 1-4 of the strategy (module docstring); True when a minimum was accepted. Raises
-    :class:`SearchTimeout` when the budget runs out during a model evaluation."""
-    out_of_time = s.clock.out_of_time
-    spectral_ok = s.space.movable.any()
-    # 1. the physics-based starts, fitted in the frequency domain first
-    given = [gs.Candidate(th, np.nan, "config (as given)", as_given=True) for origin, th in seeds if origin == "config"]
-    raw = [gs.Candidate(th, np.nan, origin) for origin, th in seeds if origin != "config"]
-
-    def queue():  # lazily: the spectral fits of the seeds only when the start as given is not accepted
-        yield from given
-        if not getattr(s.problem.model, "has_state_space", True):
-            # no states: the spectral stage cannot model the record's unfinished tail, so a
-            # frequency-response model's own physics-based start is fitted in the time domain first
-            yield from raw
-            yield from (s.seed_candidates(seeds) if spectral_ok else [])
-        elif spectral_ok:
-            yield from s.seed_candidates(seeds)
-        else:
-            yield from raw
-
-    tried = 0
-    waiting: list[tuple[str, bool, LocalResult, int]] = []  # short trials that did not converge
-
-    def attempt(c: gs.Candidate, origin: str) -> bool:
-        """One start with a short trial: the start as given ``trial_nfev``, a frequency-domain
-        candidate ``spectral_trial_nfev`` evaluations (it should be next to its minimum); one
-        that has not converged by then waits until its phase's other starts are tried."""
-        bound = o.trial_nfev if c.as_given else o.spectral_trial_nfev
-        bound = bound if (spectral_ok and (c.as_given or np.isfinite(c.cost))) else None
-        if s.try_start(c.theta, origin, c.cost, max_nfev=bound, trial=bound is not None, as_given=c.as_given):
-            return True
-        if s.stopped_short is not None:
-            waiting.append((origin, c.as_given, *s.stopped_short))
-        return False
-
-    def resume() -> bool:
-        """The waiting trials, from where each stopped, with the rest of its budget."""
-        while waiting and not out_of_time():
-            origin, as_given, res, left = waiting.pop(0)
-            label = origin.replace("(as given)", "(as given, resumed)") if as_given else f"{origin} (resumed)"
-            if s.try_start(res.theta, label, max_nfev=left, as_given=as_given):
-                return True
-        return False
-
-    for c in queue():
-        if tried >= o.n_starts or (tried and out_of_time()):
-            break
-        tried += 1
-        if attempt(c, c.origin):
-            return True
-    if resume():
-        return True
-    poles_done = False
-    def pole_phase() -> bool:
-        """3. the record's poles: lightly damped chains, whose cost basin is narrower than the scan's
-        grid; before 2. when every end so far explains nothing and the record rings (:mod:`.routing`)."""
-        nonlocal poles_done
-        poles_done = True
-        poles = s.pole_candidates()
-        s.report.poles.update({"routing": s.routing} if s.routing else {})
-        s.expect(len(poles))
-        for c in poles:
-            if out_of_time():
-                break
-            if s.best is not None and near(c.theta, s.best.theta, 1e-3):
-                continue
-            if s.try_start(c.theta, "record poles", windows=o.pole_windows):
-                return True
-        return False
-
-    pole_ok = o.global_search and o.pole_starts and spectral_ok
-    if pole_ok and o.poles_first and not out_of_time() and s.rings_unexplained() and pole_phase():
-        return True
-    # 2. the whole region
-    if o.global_search and spectral_ok and tried < o.n_starts and not out_of_time():
-        found = s.candidates_from(s.scan(), o.spectral_candidates)
-        for c in found:
-            if tried >= o.n_starts or out_of_time():
-                break
-            if s.best is not None and near(c.theta, s.best.theta):
-                continue
-            tried += 1
-            if attempt(c, "scan"):
-                return True
-        if resume():
-            return True
-    if pole_ok and not poles_done and not out_of_time() and pole_phase():
-        return True
-    # 4. last resort: around the best minimum
-    return not out_of_time() and s.fallback(out_of_time)
 
 
 def _evaluated(s: _Search, seeds: list[tuple[str, np.ndarray]]) -> LocalResult:
