@@ -670,6 +670,33 @@ def _modal_block_response(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -
     return y, _output_amplification(y, gbound, cbound, u)
 
 
+_REJECTED: list = []  # (modal form, dt, hold, u, amplification) of recent rejected outputs y
+
+
+def _note_rejection(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray, amp: float) -> None:
+    """Remember that the modal output y of this system was rejected (amplification ``amp``)."""
+    if np.isfinite(amp):
+        _REJECTED.insert(0, (mf, dt, hold, np.array(u, copy=True), amp))
+        del _REJECTED[4:]
+
+
+def _rejected_before(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -> bool:
+    """True when the modal y of the same system, step, hold and input was rejected by a margin.
+
+    The sensitivity path's amplification is a maximum over rows whose first row is y itself,
+    with the same termwise bound B (to a few ulp); its peak differs from the block
+    recursion's by at most ~eps B ||u||_2 = eps amp peak. So amp_sens >= amp / (1 + c eps amp)
+    (c = 1e3, generous), and when that exceeds the threshold by 1e-6 the sensitivity path
+    would reject too: the modal kernels are skipped (the doubling path runs, as it would).
+    A local fit evaluates y and then dy/dtheta at the same theta, so this saves one modal
+    attempt per Jacobian on records where the modal path is never accepted.
+    """
+    for mf0, dt0, hold0, u0, amp in _REJECTED:
+        if mf0 is mf and dt0 == dt and hold0 == hold and u0.shape == u.shape and np.array_equal(u0, u):
+            return amp * mf.kappa / (1.0 + 1e3 * np.finfo(float).eps * amp) > MODAL_MAX_AMPLIFICATION * (1.0 + 1e-6)
+    return False
+
+
 def _simulate_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold, method: Method) -> tuple[np.ndarray, str]:
     """Output y of eq. (1) and the path used (modal block recursion, or doubling + FFT)."""
     _check_method(hold, method)
@@ -682,6 +709,7 @@ def _simulate_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold, method: Me
                 y, amp = _modal_block_response(mf, dt, hold, u)
             if method == "modal" or amp * mf.kappa <= MODAL_MAX_AMPLIFICATION:
                 return y, "modal"
+            _note_rejection(mf, dt, hold, u, amp)
     g, corr = _doubling_kernels(ss, dt, hold, u.shape[-1])
     return _respond(g[0], None if corr is None else corr[0], u), "doubling"
 
@@ -746,7 +774,7 @@ def _simulate_sens(ss: StateSpace, derivs, u: np.ndarray, dt: float, hold: Hold,
         mf = modal_form(ss)
         if method == "modal" and mf is None:
             raise ValueError("the modal path needs a diagonalisable A with finite eigenvectors")
-        if method == "modal" or _modal_ok(mf, dt, True):
+        if method == "modal" or (_modal_ok(mf, dt, True) and not _rejected_before(mf, dt, hold, u)):
             with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
                 g, corr, gb, cb = _modal_kernels(mf, dt, hold, N, derivs)
                 out = _respond(g, corr, u)
