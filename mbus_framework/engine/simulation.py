@@ -197,7 +197,7 @@ def markov_parameters(sys: DiscreteSystem, count: int) -> np.ndarray:
         return g
     g[0] = sys.D
     if count > 1:
-        g[1:] = sys.C @ _krylov_columns(sys.Phi, sys.Gamma, count - 1)
+        g[1:] = _krylov_outputs(sys.Phi, sys.Gamma, sys.C, count - 1)
     return g
 
 
@@ -223,42 +223,84 @@ def _mm(a: np.ndarray, b: np.ndarray, rows: int = 128) -> np.ndarray:
     return out
 
 
-def _krylov_columns(Phi: np.ndarray, v: np.ndarray, count: int) -> np.ndarray:
-    """[v, Phi v, Phi^2 v, ..., Phi^(count-1) v] as columns (n, count), by doubling."""
-    S = np.empty((count, v.shape[0]))  # row k = (Phi^k v)^T
-    S[0] = v
-    filled, PT = 1, Phi.T
+def _doubling_schedule(count: int) -> tuple[list[tuple[int, int]], int]:
+    """Levels (filled, take) of repeated doubling up to ``count`` terms, and the number of
+    leading terms any level reads (``need``): level (f, t) forms terms f..f+t-1 from terms
+    0..t-1 and Phi^f."""
+    levels, filled = [], 1
     while filled < count:
         take = min(filled, count - filled)
-        S[filled : filled + take] = _mm(S[:take], PT)
+        levels.append((filled, take))
         filled += take
-        if filled < count:
+    return levels, max((t for _, t in levels), default=1)
+
+
+def _krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -> np.ndarray:
+    """c Phi^k v for k < count (count,), by doubling.
+
+    Level (f, t): c Phi^(f+k) v = (c Phi^f) (Phi^k v), k < t. Only the states Phi^k v that a
+    later level reads (k < ``need``, between a third and a half of ``count``) are formed;
+    the outputs of the others are the projections (c Phi^f) (Phi^k v), n flops each.
+    """
+    out = np.empty(count)
+    if count == 0:
+        return out
+    levels, need = _doubling_schedule(count)
+    S = np.empty((need, v.shape[0]))  # row k = (Phi^k v)^T
+    S[0] = v
+    out[0] = c @ v
+    PT = Phi.T
+    for i, (filled, take) in enumerate(levels):
+        head = S[:take]
+        out[filled : filled + take] = _mm(head, (c @ PT.T)[:, None])[:, 0]  # small calls, see _mm
+        full = min(max(need - filled, 0), take)
+        if full:
+            S[filled : filled + full] = _mm(head[:full], PT)
+        if i + 1 < len(levels):
             PT = _mm(PT, PT, rows=32)
-    return S.T
+    return out
 
 
-def _krylov_sensitivity_columns(Phi, Psi, v, dv, count):
-    """Columns of [[Phi, 0], [Psi_i, Phi]]^k [v; dv_i] for k < count, all i at once (doubling).
+def _krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
+    """Outputs of the doubling sensitivity recursion: for k < count,
 
-    Returns s (n, count) = Phi^k v and ds (p, n, count) = (d Phi^k)_i v + Phi^k dv_i, using
-    [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]].
+        o[k] = c Phi^k v,    o_i[k] = dc_i Phi^k v + c ((d Phi^k)_i v + Phi^k dv_i),
+
+    returned as o (count,) and o_p (p, count), using [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]]
+    (P = Phi^f, Q_i = (d Phi^f)_i at level f). As in :func:`_krylov_outputs`, only the states a
+    later level reads are formed; every output is a projection
+
+        o[f+k] = (c P) s_k,   o_i[f+k] = (dc_i P + c Q_i) s_k + (c P) ds_{i,k}.
     """
     n, p = v.shape[0], dv.shape[0]
-    s = np.empty((count, n))
-    ds = np.empty((p, count, n))
+    o = np.empty(count)
+    op = np.empty((p, count))
+    if count == 0:
+        return o, op
+    levels, need = _doubling_schedule(count)
+    s = np.empty((need, n))
+    ds = np.empty((p, need, n))
     s[0] = v
     ds[:, 0] = dv
-    filled, P, Q = 1, Phi, Psi
-    while filled < count:
-        take = min(filled, count - filled)
+    o[0] = c @ v
+    op[:, 0] = dc @ v + dv @ c
+    P, Q = Phi, Psi
+    for i, (filled, take) in enumerate(levels):
         s_head, ds_head = s[:take], ds[:, :take]
-        ds[:, filled : filled + take] = _mm(s_head, Q.transpose(0, 2, 1)) + _mm(ds_head, P.T)
-        s[filled : filled + take] = _mm(s_head, P.T)
-        filled += take
-        if filled < count:
+        cP = c @ P  # (n,)
+        row = dc @ P + np.einsum("m,pmn->pn", c, Q)  # (p, n): dc_i P + c Q_i
+        # stacks of small products (see _mm): [s_k (c P, dc_i P + c Q_i)] and ds_{i,k} (c P)
+        both = _mm(s_head, np.concatenate([cP[:, None], row.T], axis=1))  # (take, 1 + p)
+        o[filled : filled + take] = both[:, 0]
+        op[:, filled : filled + take] = both[:, 1:].T + _mm(ds_head, cP[:, None])[..., 0]
+        full = min(max(need - filled, 0), take)
+        if full:
+            ds[:, filled : filled + full] = _mm(s_head[:full], Q.transpose(0, 2, 1)) + _mm(ds_head[:, :full], P.T)
+            s[filled : filled + full] = _mm(s_head[:full], P.T)
+        if i + 1 < len(levels):
             Q = _mm(Q, P, rows=32) + _mm(P, Q, rows=32)
             P = _mm(P, P, rows=32)
-    return s.T, ds.transpose(0, 2, 1)
+    return o, op
 
 
 # ---------------------------------------------------------------------------------------
@@ -725,7 +767,7 @@ def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None
     if p == 0:
         g[0] = markov_parameters(base, N)
         if corr is not None:
-            corr[0] = base.C @ _krylov_columns(base.Phi, base.Gamma1, N)
+            corr[0] = _krylov_outputs(base.Phi, base.Gamma1, base.C, N)
         return g, corr
     A, B, C, _ = ss
     n = A.shape[0]
@@ -750,13 +792,9 @@ def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None
             dGamma1[i] = da.Gamma1[n:]
     g[0, 0], g[1:, 0] = base.D, dD
     if N > 1:
-        s, ds = _krylov_sensitivity_columns(base.Phi, Psi, base.Gamma, dGamma, N - 1)
-        g[0, 1:] = base.C @ s
-        g[1:, 1:] = dC @ s + np.einsum("n,pnk->pk", base.C, ds)
+        g[0, 1:], g[1:, 1:] = _krylov_sensitivity_outputs(base.Phi, Psi, base.Gamma, dGamma, base.C, dC, N - 1)
     if corr is not None:
-        s, ds = _krylov_sensitivity_columns(base.Phi, Psi, base.Gamma1, dGamma1, N)
-        corr[0] = base.C @ s
-        corr[1:] = dC @ s + np.einsum("n,pnk->pk", base.C, ds)
+        corr[0], corr[1:] = _krylov_sensitivity_outputs(base.Phi, Psi, base.Gamma1, dGamma1, base.C, dC, N)
     return g, corr
 
 
