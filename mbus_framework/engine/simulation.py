@@ -238,9 +238,9 @@ def _doubling_schedule(count: int) -> tuple[list[tuple[int, int]], int]:
 def _krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -> np.ndarray:
     """c Phi^k v for k < count (count,), by doubling.
 
-    Level (f, t): c Phi^(f+k) v = (c Phi^f) (Phi^k v), k < t. Only the states Phi^k v that a
-    later level reads (k < ``need``, between a third and a half of ``count``) are formed;
-    the outputs of the others are the projections (c Phi^f) (Phi^k v), n flops each.
+    Only the states Phi^k v that a later level reads are formed (k < ``need``, between a third
+    and a half of ``count``); their outputs are c (Phi^k v), and the terms of a level (f, t)
+    beyond them are the projections c Phi^(f+k) v = (c Phi^f) (Phi^k v), n flops each.
     """
     out = np.empty(count)
     if count == 0:
@@ -248,16 +248,17 @@ def _krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -
     levels, need = _doubling_schedule(count)
     S = np.empty((need, v.shape[0]))  # row k = (Phi^k v)^T
     S[0] = v
-    out[0] = c @ v
     PT = Phi.T
     for i, (filled, take) in enumerate(levels):
         head = S[:take]
-        out[filled : filled + take] = _mm(head, (c @ PT.T)[:, None])[:, 0]  # small calls, see _mm
         full = min(max(need - filled, 0), take)
         if full:
             S[filled : filled + full] = _mm(head[:full], PT)
+        if full < take:  # small calls, see _mm
+            out[filled + full : filled + take] = _mm(head[full:], (c @ PT.T)[:, None])[:, 0]
         if i + 1 < len(levels):
             PT = _mm(PT, PT, rows=32)
+    out[:need] = _mm(S, c[:, None])[:, 0]
     return out
 
 
@@ -267,8 +268,9 @@ def _krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
         o[k] = c Phi^k v,    o_i[k] = dc_i Phi^k v + c ((d Phi^k)_i v + Phi^k dv_i),
 
     returned as o (count,) and o_p (p, count), using [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]]
-    (P = Phi^f, Q_i = (d Phi^f)_i at level f). As in :func:`_krylov_outputs`, only the states a
-    later level reads are formed; every output is a projection
+    (P = Phi^f, Q_i = (d Phi^f)_i at level f). As in :func:`_krylov_outputs`, only the states
+    s_k = Phi^k v, ds_{i,k} that a later level reads are formed; the terms of a level beyond
+    them are the projections
 
         o[f+k] = (c P) s_k,   o_i[f+k] = (dc_i P + c Q_i) s_k + (c P) ds_{i,k}.
     """
@@ -282,24 +284,26 @@ def _krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
     ds = np.empty((p, need, n))
     s[0] = v
     ds[:, 0] = dv
-    o[0] = c @ v
-    op[:, 0] = dc @ v + dv @ c
     P, Q = Phi, Psi
     for i, (filled, take) in enumerate(levels):
         s_head, ds_head = s[:take], ds[:, :take]
-        cP = c @ P  # (n,)
-        row = dc @ P + np.einsum("m,pmn->pn", c, Q)  # (p, n): dc_i P + c Q_i
-        # stacks of small products (see _mm): [s_k (c P, dc_i P + c Q_i)] and ds_{i,k} (c P)
-        both = _mm(s_head, np.concatenate([cP[:, None], row.T], axis=1))  # (take, 1 + p)
-        o[filled : filled + take] = both[:, 0]
-        op[:, filled : filled + take] = both[:, 1:].T + _mm(ds_head, cP[:, None])[..., 0]
         full = min(max(need - filled, 0), take)
         if full:
             ds[:, filled : filled + full] = _mm(s_head[:full], Q.transpose(0, 2, 1)) + _mm(ds_head[:, :full], P.T)
             s[filled : filled + full] = _mm(s_head[:full], P.T)
+        if full < take:
+            cP = c @ P  # (n,)
+            row = dc @ P + np.einsum("m,pmn->pn", c, Q)  # (p, n): dc_i P + c Q_i
+            # stacks of small products (see _mm): s_k [c P, dc_i P + c Q_i] and ds_{i,k} (c P)
+            both = _mm(s_head[full:], np.concatenate([cP[:, None], row.T], axis=1))  # (take - full, 1 + p)
+            o[filled + full : filled + take] = both[:, 0]
+            op[:, filled + full : filled + take] = both[:, 1:].T + _mm(ds_head[:, full:], cP[:, None])[..., 0]
         if i + 1 < len(levels):
             Q = _mm(Q, P, rows=32) + _mm(P, Q, rows=32)
             P = _mm(P, P, rows=32)
+    both = _mm(s, np.concatenate([c[:, None], dc.T], axis=1))  # (need, 1 + p)
+    o[:need] = both[:, 0]
+    op[:, :need] = both[:, 1:].T + _mm(ds, c[:, None])[..., 0]
     return o, op
 
 
