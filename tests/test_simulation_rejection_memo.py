@@ -70,3 +70,48 @@ def test_accepted_modal_output_is_not_remembered():
     sim.simulate(m, TABLE_3_1, u, DT)
     assert not sim._REJECTED
     assert not sim._rejected_before(sim.modal_form(ss), DT, "zoh", u)
+
+
+def _fresh_y(m, theta, u, hold):
+    sim._REJECTED.clear()
+    sim._LAST_Y_PATH.clear()
+    return sim.simulate(m, theta, u, DT, hold)
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_doubling_first_gives_the_same_output(hold, monkeypatch):
+    m, u = model(), prbs()
+    y_ref = _fresh_y(m, THETA, u, hold)  # modal tried, rejected: doubling
+    assert sim._expect_doubling(DT, hold, u)
+    theta = THETA * np.array([1.01, 0.99, 1.02, 0.98])
+    y_fresh = _fresh_y(m, theta, u, hold)
+    sim.simulate(m, THETA, u, DT, hold)  # the record is known to take the doubling path
+    monkeypatch.setattr(sim, "_modal_block_response", lambda *a: pytest.fail("modal y formed"))
+    np.testing.assert_array_equal(sim.simulate(m, THETA, u, DT, hold), y_ref)
+    np.testing.assert_array_equal(sim.simulate(m, theta, u, DT, hold), y_fresh)
+
+
+def test_prediction_does_not_change_an_accepted_modal_output():
+    kid, tab, u = model(), model(1000.0), prbs()
+    y_ref = _fresh_y(tab, TABLE_3_1, u, "zoh")
+    assert sim.engine_path(sim.as_float_ss(tab.state_space(TABLE_3_1)), DT, u=u) == "modal"
+    sim.simulate(kid, THETA, u, DT)  # last path on this record: doubling
+    assert sim._expect_doubling(DT, "zoh", u)
+    np.testing.assert_array_equal(sim.simulate(tab, TABLE_3_1, u, DT), y_ref)
+    assert not sim._expect_doubling(DT, "zoh", u)  # the modal acceptance is remembered
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_bounds_match_the_block_recursion(hold):
+    m, u = model(), prbs()
+    mf = sim.modal_form(sim.as_float_ss(m.state_space(THETA)))
+    y, amp = sim._modal_block_response(mf, DT, hold, u)
+    assert sim._output_amplification(y, *sim._modal_y_bounds(mf, DT, hold, u.size), u) == amp
+
+
+def test_surely_rejected_keeps_a_margin():
+    u = prbs()
+    T = sim.MODAL_MAX_AMPLIFICATION
+    assert sim._surely_rejected(2 * T / 25.0, 25.0, u)
+    assert not sim._surely_rejected(T / 25.0 * (1 + 1e-9), 25.0, u)  # borderline: decided by the modal y
+    assert not sim._surely_rejected(np.inf, 25.0, u) and not sim._surely_rejected(0.0, 25.0, u)

@@ -717,6 +717,22 @@ def _modal_block_response(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -
 
 
 _REJECTED: list = []  # (modal form, dt, hold, u, amplification) of recent rejected outputs y
+_LAST_Y_PATH: list = []  # [(dt, hold, u, path)] of the last output y computed by method 'auto'
+
+
+def _surely_rejected(amp: float, kappa: float, u: np.ndarray) -> bool:
+    """True when a modal output whose amplification, measured on *another* computation of the
+    same y (block recursion, FFT convolution or the doubling path), is ``amp`` would be
+    rejected however the round-off falls.
+
+    Two computations of y differ by at most ~c eps kappa B ||u||_1 (B the termwise bound,
+    c = 1e3 generous), so the modal amplification B ||u||_2 / peak is at least
+    1 / (1/amp + c eps kappa ||u||_1 / ||u||_2) >= 1 / (1/amp + c eps kappa sqrt(N)); the
+    decision is taken only when that exceeds the threshold by 1e-6."""
+    if not np.isfinite(amp) or amp <= 0.0:
+        return False
+    slack = 1e3 * np.finfo(float).eps * kappa * np.sqrt(max(u.shape[-1], 1))
+    return kappa / (1.0 / amp + slack) > MODAL_MAX_AMPLIFICATION * (1.0 + 1e-6)
 
 
 def _note_rejection(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray, amp: float) -> None:
@@ -727,37 +743,89 @@ def _note_rejection(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray, amp: fl
 
 
 def _rejected_before(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -> bool:
-    """True when the modal y of the same system, step, hold and input was rejected by a margin.
+    """True when the modal y of the same system, step, hold and input was rejected by a margin
+    (:func:`_surely_rejected`).
 
     The sensitivity path's amplification is a maximum over rows whose first row is y itself,
-    with the same termwise bound B (to a few ulp); its peak differs from the block
-    recursion's by at most ~eps B ||u||_2 = eps amp peak. So amp_sens >= amp / (1 + c eps amp)
-    (c = 1e3, generous), and when that exceeds the threshold by 1e-6 the sensitivity path
-    would reject too: the modal kernels are skipped (the doubling path runs, as it would).
-    A local fit evaluates y and then dy/dtheta at the same theta, so this saves one modal
-    attempt per Jacobian on records where the modal path is never accepted.
+    with the same termwise bound B (to a few ulp), so it would reject too: the modal kernels
+    are skipped (the doubling path runs, as it would). A local fit evaluates y and then
+    dy/dtheta at the same theta, so this saves one modal attempt per Jacobian on records
+    where the modal path is not accepted.
     """
     for mf0, dt0, hold0, u0, amp in _REJECTED:
         if mf0 is mf and dt0 == dt and hold0 == hold and u0.shape == u.shape and np.array_equal(u0, u):
-            return amp * mf.kappa / (1.0 + 1e3 * np.finfo(float).eps * amp) > MODAL_MAX_AMPLIFICATION * (1.0 + 1e-6)
+            return _surely_rejected(amp, mf.kappa, u)
     return False
 
 
+def _expect_doubling(dt: float, hold: Hold, u: np.ndarray) -> bool:
+    """True when the last output y computed for this record (step, hold, input) took the doubling path."""
+    if not _LAST_Y_PATH:
+        return False
+    dt0, hold0, u0, path = _LAST_Y_PATH[0]
+    return path == "doubling" and dt0 == dt and hold0 == hold and u0.shape == u.shape and np.array_equal(u0, u)
+
+
+def _note_path(dt: float, hold: Hold, u: np.ndarray, path: str) -> None:
+    if _LAST_Y_PATH and _LAST_Y_PATH[0][0] == dt and _LAST_Y_PATH[0][1] == hold and np.array_equal(_LAST_Y_PATH[0][2], u):
+        _LAST_Y_PATH[0] = (dt, hold, _LAST_Y_PATH[0][2], path)
+    else:
+        _LAST_Y_PATH[:] = [(dt, hold, np.array(u, copy=True), path)]
+
+
+def _modal_y_bounds(mf: ModalForm, dt: float, hold: Hold, N: int) -> tuple[float, float | None]:
+    """Termwise bounds (g, c) of the modal sums of y, as :func:`_modal_block_response` forms them."""
+    k, w = mf.keep, mf.weight
+    z = mf.lam[k] * dt
+    K, _, Lh, _ = _hold_weights(mf.lam * dt, dt, hold, derivatives=False)
+    r = w * (mf.cb * mf.bb)[k]
+    grow = np.where(z.real > 0, np.exp(z.real * (N - 1)), 1.0)
+    gbound = float(np.abs(r * K[k]) @ grow)
+    cbound = None
+    if hold == "foh":
+        cbound = float(np.abs(r * Lh[k]) @ grow)
+        gbound += cbound
+    return gbound, cbound
+
+
+def _doubling_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold) -> np.ndarray:
+    g, corr = _doubling_kernels(ss, dt, hold, u.shape[-1])
+    return _respond(g[0], None if corr is None else corr[0], u)
+
+
 def _simulate_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold, method: Method) -> tuple[np.ndarray, str]:
-    """Output y of eq. (1) and the path used (modal block recursion, or doubling + FFT)."""
+    """Output y of eq. (1) and the path used (modal block recursion, or doubling + FFT).
+
+    With ``method='auto'``, when the last y of the same record took the doubling path, the
+    doubling y is computed first; if its amplification shows the modal y would surely be
+    rejected (:func:`_surely_rejected`), it is returned without forming the modal y. Otherwise
+    the modal y decides as usual. The result is the same either way; only the order differs.
+    """
     _check_method(hold, method)
     if method != "doubling":
         mf = modal_form(ss)
         if method == "modal" and mf is None:
             raise ValueError("the modal path needs a diagonalisable A with finite eigenvectors")
         if method == "modal" or _modal_ok(mf, dt, False):
+            yd = None
+            if method == "auto" and u.shape[-1] and _expect_doubling(dt, hold, u):
+                yd = _doubling_y(ss, u, dt, hold)
+                with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
+                    amp_d = _output_amplification(yd, *_modal_y_bounds(mf, dt, hold, u.shape[-1]), u)
+                if _surely_rejected(amp_d, mf.kappa, u):
+                    _note_rejection(mf, dt, hold, u, amp_d)
+                    return yd, "doubling"
             with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
                 y, amp = _modal_block_response(mf, dt, hold, u)
             if method == "modal" or amp * mf.kappa <= MODAL_MAX_AMPLIFICATION:
+                if method == "auto":
+                    _note_path(dt, hold, u, "modal")
                 return y, "modal"
             _note_rejection(mf, dt, hold, u, amp)
-    g, corr = _doubling_kernels(ss, dt, hold, u.shape[-1])
-    return _respond(g[0], None if corr is None else corr[0], u), "doubling"
+            _note_path(dt, hold, u, "doubling")
+            if yd is not None:
+                return yd, "doubling"
+    return _doubling_y(ss, u, dt, hold), "doubling"
 
 
 def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None):
