@@ -60,7 +60,9 @@ kernels cost O(n N) without forming Phi^k.
 *Repeated doubling* (safe fallback). Phi, Gamma0, Gamma1 from one matrix exponential of an
 augmented matrix (Van Loan); the Krylov sequence [v, Phi v, Phi^2 v, ...] by doubling,
 [S, Phi^(2^j) S]. It needs no eigendecomposition and is exact for defective
-(repeated-eigenvalue, Jordan-block) models. Cost O(n^2 N).
+(repeated-eigenvalue, Jordan-block) models. Only the states a later doubling level reads are
+formed (a third to a half of them); the kernel values beyond are projections
+(C Phi^f) (Phi^k v). Cost O(n^2 N).
 
 Choosing the path (``method="auto"``): the modal path is tried when the eigenvector matrix
 of the balanced A is well conditioned (kappa_1(V) <= ``MODAL_MAX_CONDITION``) and, for
@@ -73,7 +75,10 @@ cancelling residues or partial fractions) and records that end before the wave a
 output ~1e-20 of the modal terms). Otherwise the doubling path runs. Both paths stay far
 below the 1e-9 target: the modal path's measured error is < 180 eps kappa amplification
 (< ~2e-10 where accepted), the doubling path's ~1e-14 (tests/test_simulation.py, the
-benchmark).
+benchmark). Fits evaluate one record many times: when its last output took the doubling path,
+the doubling y is computed first and the modal y only when the decision could go the other
+way, and a Jacobian at a theta whose modal y was just rejected skips the modal kernels
+(``_surely_rejected``: the same path and result, only the order differs).
 
 Threading: the engine's matrices are small (tens of states). Products are arranged so that
 no single BLAS call is large enough for a threaded BLAS to split it across cores, which on
