@@ -86,18 +86,25 @@ def _point_values(lam: np.ndarray, f: np.ndarray, dt: float | None):
     return K[None, :] / den, dK[None, :] / den + K[None, :] * dt * E[None, :] / den**2
 
 
-def _fdk_term(lam, val, der, q, dt) -> np.ndarray:
+def _gaps(lam, dt):
+    """(lam_i - lam_j, nearly-equal mask, safe divisor) of :func:`_fdk_term`, once per modal form."""
+    gap = lam[:, None] - lam[None, :]
+    scale = np.maximum(np.maximum(np.abs(lam)[:, None], np.abs(lam)[None, :]), 1.0 / dt)
+    close = np.abs(gap) <= _CLOSE * scale
+    return gap, close, np.where(close, 1.0, gap)
+
+
+def _fdk_term(lam, val, der, q, dt, gaps=None) -> np.ndarray:
     """sum_ij q_ij F_ij per frequency, F the divided differences of f (module docstring).
 
     Continuous: F_ij = f_i f_j exactly, so the sum is the quadratic form (val q) . val.
     ZOH: F_ij = (f_i - f_j) / (lam_i - lam_j) off the diagonal, f'_i on it (and on nearly
-    equal pairs), which splits into O(F n) sums."""
+    equal pairs), which splits into O(F n) sums. ``gaps``: :func:`_gaps` (lam, dt) when the
+    caller has them (one per parameter otherwise)."""
     if dt is None:
         return ((val @ q) * val).sum(axis=1)
-    gap = lam[:, None] - lam[None, :]
-    scale = np.maximum(np.maximum(np.abs(lam)[:, None], np.abs(lam)[None, :]), 1.0 / dt)
-    close = np.abs(gap) <= _CLOSE * scale
-    Q = np.where(close, 0.0, q / np.where(close, 1.0, gap))
+    _, close, divisor = _gaps(lam, dt) if gaps is None else gaps
+    Q = np.where(close, 0.0, q / divisor)
     out = val @ Q.sum(axis=1) - val @ Q.sum(axis=0)
     for i, j in zip(*np.nonzero(close)):
         out = out + q[i, j] * 0.5 * (der[:, i] + der[:, j])
@@ -256,6 +263,7 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
         return _direct_jacobian(model, theta, f, dt, ss, derivatives)
     T = mf.scale
     J = np.empty((f.size, theta.size), dtype=complex)
+    gaps = None if dt is None else _gaps(mf.lam, dt)
     for p, (dA, dB, dC, dD) in enumerate(derivatives):
         dcb = (dC[0] * T) @ mf.V
         dbb = mf.W @ (dB[:, 0] / T)
@@ -263,7 +271,7 @@ def response_with_jacobian(model: MediumModel, theta, f, dt: float | None = None
         q = mf.cb[:, None] * M * mf.bb[None, :]
         J[:, p] = (
             (val * (dcb * mf.bb + mf.cb * dbb)[None, :]).sum(axis=1)
-            + _fdk_term(mf.lam, val, der, q, dt)
+            + _fdk_term(mf.lam, val, der, q, dt, gaps)
             + float(dD[0, 0])
         )
     if bad.any():  # the lines where the modal sum is unsafe: solved directly

@@ -60,7 +60,9 @@ kernels cost O(n N) without forming Phi^k.
 *Repeated doubling* (safe fallback). Phi, Gamma0, Gamma1 from one matrix exponential of an
 augmented matrix (Van Loan); the Krylov sequence [v, Phi v, Phi^2 v, ...] by doubling,
 [S, Phi^(2^j) S]. It needs no eigendecomposition and is exact for defective
-(repeated-eigenvalue, Jordan-block) models. Cost O(n^2 N).
+(repeated-eigenvalue, Jordan-block) models. Only the states a later doubling level reads are
+formed (a third to a half of them); the kernel values beyond are projections
+(C Phi^f) (Phi^k v). Cost O(n^2 N).
 
 Choosing the path (``method="auto"``): the modal path is tried when the eigenvector matrix
 of the balanced A is well conditioned (kappa_1(V) <= ``MODAL_MAX_CONDITION``) and, for
@@ -73,7 +75,10 @@ cancelling residues or partial fractions) and records that end before the wave a
 output ~1e-20 of the modal terms). Otherwise the doubling path runs. Both paths stay far
 below the 1e-9 target: the modal path's measured error is < 180 eps kappa amplification
 (< ~2e-10 where accepted), the doubling path's ~1e-14 (tests/test_simulation.py, the
-benchmark).
+benchmark). Fits evaluate one record many times: when its last output took the doubling path,
+the doubling y is computed first and the modal y only when the decision could go the other
+way, and a Jacobian at a theta whose modal y was just rejected skips the modal kernels
+(``_surely_rejected``: the same path and result, only the order differs).
 
 Threading: the engine's matrices are small (tens of states). Products are arranged so that
 no single BLAS call is large enough for a threaded BLAS to split it across cores, which on
@@ -197,7 +202,7 @@ def markov_parameters(sys: DiscreteSystem, count: int) -> np.ndarray:
         return g
     g[0] = sys.D
     if count > 1:
-        g[1:] = sys.C @ _krylov_columns(sys.Phi, sys.Gamma, count - 1)
+        g[1:] = _krylov_outputs(sys.Phi, sys.Gamma, sys.C, count - 1)
     return g
 
 
@@ -223,42 +228,88 @@ def _mm(a: np.ndarray, b: np.ndarray, rows: int = 128) -> np.ndarray:
     return out
 
 
-def _krylov_columns(Phi: np.ndarray, v: np.ndarray, count: int) -> np.ndarray:
-    """[v, Phi v, Phi^2 v, ..., Phi^(count-1) v] as columns (n, count), by doubling."""
-    S = np.empty((count, v.shape[0]))  # row k = (Phi^k v)^T
-    S[0] = v
-    filled, PT = 1, Phi.T
+def _doubling_schedule(count: int) -> tuple[list[tuple[int, int]], int]:
+    """Levels (filled, take) of repeated doubling up to ``count`` terms, and the number of
+    leading terms any level reads (``need``): level (f, t) forms terms f..f+t-1 from terms
+    0..t-1 and Phi^f."""
+    levels, filled = [], 1
     while filled < count:
         take = min(filled, count - filled)
-        S[filled : filled + take] = _mm(S[:take], PT)
+        levels.append((filled, take))
         filled += take
-        if filled < count:
+    return levels, max((t for _, t in levels), default=1)
+
+
+def _krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -> np.ndarray:
+    """c Phi^k v for k < count (count,), by doubling.
+
+    Only the states Phi^k v that a later level reads are formed (k < ``need``, between a third
+    and a half of ``count``); their outputs are c (Phi^k v), and the terms of a level (f, t)
+    beyond them are the projections c Phi^(f+k) v = (c Phi^f) (Phi^k v), n flops each.
+    """
+    out = np.empty(count)
+    if count == 0:
+        return out
+    levels, need = _doubling_schedule(count)
+    S = np.empty((need, v.shape[0]))  # row k = (Phi^k v)^T
+    S[0] = v
+    PT = Phi.T
+    for i, (filled, take) in enumerate(levels):
+        head = S[:take]
+        full = min(max(need - filled, 0), take)
+        if full:
+            S[filled : filled + full] = _mm(head[:full], PT)
+        if full < take:  # small calls, see _mm
+            out[filled + full : filled + take] = _mm(head[full:], (c @ PT.T)[:, None])[:, 0]
+        if i + 1 < len(levels):
             PT = _mm(PT, PT, rows=32)
-    return S.T
+    out[:need] = _mm(S, c[:, None])[:, 0]
+    return out
 
 
-def _krylov_sensitivity_columns(Phi, Psi, v, dv, count):
-    """Columns of [[Phi, 0], [Psi_i, Phi]]^k [v; dv_i] for k < count, all i at once (doubling).
+def _krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
+    """Outputs of the doubling sensitivity recursion: for k < count,
 
-    Returns s (n, count) = Phi^k v and ds (p, n, count) = (d Phi^k)_i v + Phi^k dv_i, using
-    [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]].
+        o[k] = c Phi^k v,    o_i[k] = dc_i Phi^k v + c ((d Phi^k)_i v + Phi^k dv_i),
+
+    returned as o (count,) and o_p (p, count), using [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]]
+    (P = Phi^f, Q_i = (d Phi^f)_i at level f). As in :func:`_krylov_outputs`, only the states
+    s_k = Phi^k v, ds_{i,k} that a later level reads are formed; the terms of a level beyond
+    them are the projections
+
+        o[f+k] = (c P) s_k,   o_i[f+k] = (dc_i P + c Q_i) s_k + (c P) ds_{i,k}.
     """
     n, p = v.shape[0], dv.shape[0]
-    s = np.empty((count, n))
-    ds = np.empty((p, count, n))
+    o = np.empty(count)
+    op = np.empty((p, count))
+    if count == 0:
+        return o, op
+    levels, need = _doubling_schedule(count)
+    s = np.empty((need, n))
+    ds = np.empty((p, need, n))
     s[0] = v
     ds[:, 0] = dv
-    filled, P, Q = 1, Phi, Psi
-    while filled < count:
-        take = min(filled, count - filled)
+    P, Q = Phi, Psi
+    for i, (filled, take) in enumerate(levels):
         s_head, ds_head = s[:take], ds[:, :take]
-        ds[:, filled : filled + take] = _mm(s_head, Q.transpose(0, 2, 1)) + _mm(ds_head, P.T)
-        s[filled : filled + take] = _mm(s_head, P.T)
-        filled += take
-        if filled < count:
+        full = min(max(need - filled, 0), take)
+        if full:
+            ds[:, filled : filled + full] = _mm(s_head[:full], Q.transpose(0, 2, 1)) + _mm(ds_head[:, :full], P.T)
+            s[filled : filled + full] = _mm(s_head[:full], P.T)
+        if full < take:
+            cP = c @ P  # (n,)
+            row = dc @ P + np.einsum("m,pmn->pn", c, Q)  # (p, n): dc_i P + c Q_i
+            # stacks of small products (see _mm): s_k [c P, dc_i P + c Q_i] and ds_{i,k} (c P)
+            both = _mm(s_head[full:], np.concatenate([cP[:, None], row.T], axis=1))  # (take - full, 1 + p)
+            o[filled + full : filled + take] = both[:, 0]
+            op[:, filled + full : filled + take] = both[:, 1:].T + _mm(ds_head[:, full:], cP[:, None])[..., 0]
+        if i + 1 < len(levels):
             Q = _mm(Q, P, rows=32) + _mm(P, Q, rows=32)
             P = _mm(P, P, rows=32)
-    return s.T, ds.transpose(0, 2, 1)
+    both = _mm(s, np.concatenate([c[:, None], dc.T], axis=1))  # (need, 1 + p)
+    o[:need] = both[:, 0]
+    op[:, :need] = both[:, 1:].T + _mm(ds, c[:, None])[..., 0]
+    return o, op
 
 
 # ---------------------------------------------------------------------------------------
@@ -670,20 +721,116 @@ def _modal_block_response(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -
     return y, _output_amplification(y, gbound, cbound, u)
 
 
+_REJECTED: list = []  # (modal form, dt, hold, u, amplification) of recent rejected outputs y
+_LAST_Y_PATH: list = []  # [(dt, hold, u, path)] of the last output y computed by method 'auto'
+
+
+def _surely_rejected(amp: float, kappa: float, u: np.ndarray) -> bool:
+    """True when a modal output whose amplification, measured on *another* computation of the
+    same y (block recursion, FFT convolution or the doubling path), is ``amp`` would be
+    rejected however the round-off falls.
+
+    Two computations of y differ by at most ~c eps kappa B ||u||_1 (B the termwise bound,
+    c = 1e3 generous), so the modal amplification B ||u||_2 / peak is at least
+    1 / (1/amp + c eps kappa ||u||_1 / ||u||_2) >= 1 / (1/amp + c eps kappa sqrt(N)); the
+    decision is taken only when that exceeds the threshold by 1e-6."""
+    if not np.isfinite(amp) or amp <= 0.0:
+        return False
+    slack = 1e3 * np.finfo(float).eps * kappa * np.sqrt(max(u.shape[-1], 1))
+    return kappa / (1.0 / amp + slack) > MODAL_MAX_AMPLIFICATION * (1.0 + 1e-6)
+
+
+def _note_rejection(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray, amp: float) -> None:
+    """Remember that the modal output y of this system was rejected (amplification ``amp``)."""
+    if np.isfinite(amp):
+        _REJECTED.insert(0, (mf, dt, hold, np.array(u, copy=True), amp))
+        del _REJECTED[4:]
+
+
+def _rejected_before(mf: ModalForm, dt: float, hold: Hold, u: np.ndarray) -> bool:
+    """True when the modal y of the same system, step, hold and input was rejected by a margin
+    (:func:`_surely_rejected`).
+
+    The sensitivity path's amplification is a maximum over rows whose first row is y itself,
+    with the same termwise bound B (to a few ulp), so it would reject too: the modal kernels
+    are skipped (the doubling path runs, as it would). A local fit evaluates y and then
+    dy/dtheta at the same theta, so this saves one modal attempt per Jacobian on records
+    where the modal path is not accepted.
+    """
+    for mf0, dt0, hold0, u0, amp in _REJECTED:
+        if mf0 is mf and dt0 == dt and hold0 == hold and u0.shape == u.shape and np.array_equal(u0, u):
+            return _surely_rejected(amp, mf.kappa, u)
+    return False
+
+
+def _expect_doubling(dt: float, hold: Hold, u: np.ndarray) -> bool:
+    """True when the last output y computed for this record (step, hold, input) took the doubling path."""
+    if not _LAST_Y_PATH:
+        return False
+    dt0, hold0, u0, path = _LAST_Y_PATH[0]
+    return path == "doubling" and dt0 == dt and hold0 == hold and u0.shape == u.shape and np.array_equal(u0, u)
+
+
+def _note_path(dt: float, hold: Hold, u: np.ndarray, path: str) -> None:
+    if _LAST_Y_PATH and _LAST_Y_PATH[0][0] == dt and _LAST_Y_PATH[0][1] == hold and np.array_equal(_LAST_Y_PATH[0][2], u):
+        _LAST_Y_PATH[0] = (dt, hold, _LAST_Y_PATH[0][2], path)
+    else:
+        _LAST_Y_PATH[:] = [(dt, hold, np.array(u, copy=True), path)]
+
+
+def _modal_y_bounds(mf: ModalForm, dt: float, hold: Hold, N: int) -> tuple[float, float | None]:
+    """Termwise bounds (g, c) of the modal sums of y, as :func:`_modal_block_response` forms them."""
+    k, w = mf.keep, mf.weight
+    z = mf.lam[k] * dt
+    K, _, Lh, _ = _hold_weights(mf.lam * dt, dt, hold, derivatives=False)
+    r = w * (mf.cb * mf.bb)[k]
+    grow = np.where(z.real > 0, np.exp(z.real * (N - 1)), 1.0)
+    gbound = float(np.abs(r * K[k]) @ grow)
+    cbound = None
+    if hold == "foh":
+        cbound = float(np.abs(r * Lh[k]) @ grow)
+        gbound += cbound
+    return gbound, cbound
+
+
+def _doubling_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold) -> np.ndarray:
+    g, corr = _doubling_kernels(ss, dt, hold, u.shape[-1])
+    return _respond(g[0], None if corr is None else corr[0], u)
+
+
 def _simulate_y(ss: StateSpace, u: np.ndarray, dt: float, hold: Hold, method: Method) -> tuple[np.ndarray, str]:
-    """Output y of eq. (1) and the path used (modal block recursion, or doubling + FFT)."""
+    """Output y of eq. (1) and the path used (modal block recursion, or doubling + FFT).
+
+    With ``method='auto'``, when the last y of the same record took the doubling path, the
+    doubling y is computed first; if its amplification shows the modal y would surely be
+    rejected (:func:`_surely_rejected`), it is returned without forming the modal y. Otherwise
+    the modal y decides as usual. The result is the same either way; only the order differs.
+    """
     _check_method(hold, method)
     if method != "doubling":
         mf = modal_form(ss)
         if method == "modal" and mf is None:
             raise ValueError("the modal path needs a diagonalisable A with finite eigenvectors")
         if method == "modal" or _modal_ok(mf, dt, False):
+            yd = None
+            if method == "auto" and u.shape[-1] and _expect_doubling(dt, hold, u):
+                yd = _doubling_y(ss, u, dt, hold)
+                with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
+                    amp_d = _output_amplification(yd, *_modal_y_bounds(mf, dt, hold, u.shape[-1]), u)
+                if _surely_rejected(amp_d, mf.kappa, u):
+                    _note_rejection(mf, dt, hold, u, amp_d)
+                    return yd, "doubling"
             with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
                 y, amp = _modal_block_response(mf, dt, hold, u)
             if method == "modal" or amp * mf.kappa <= MODAL_MAX_AMPLIFICATION:
+                if method == "auto":
+                    _note_path(dt, hold, u, "modal")
                 return y, "modal"
-    g, corr = _doubling_kernels(ss, dt, hold, u.shape[-1])
-    return _respond(g[0], None if corr is None else corr[0], u), "doubling"
+            _note_rejection(mf, dt, hold, u, amp)
+            _note_path(dt, hold, u, "doubling")
+            if yd is not None:
+                return yd, "doubling"
+    return _doubling_y(ss, u, dt, hold), "doubling"
 
 
 def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None):
@@ -697,7 +844,7 @@ def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None
     if p == 0:
         g[0] = markov_parameters(base, N)
         if corr is not None:
-            corr[0] = base.C @ _krylov_columns(base.Phi, base.Gamma1, N)
+            corr[0] = _krylov_outputs(base.Phi, base.Gamma1, base.C, N)
         return g, corr
     A, B, C, _ = ss
     n = A.shape[0]
@@ -722,13 +869,9 @@ def _doubling_kernels(ss: StateSpace, dt: float, hold: Hold, N: int, derivs=None
             dGamma1[i] = da.Gamma1[n:]
     g[0, 0], g[1:, 0] = base.D, dD
     if N > 1:
-        s, ds = _krylov_sensitivity_columns(base.Phi, Psi, base.Gamma, dGamma, N - 1)
-        g[0, 1:] = base.C @ s
-        g[1:, 1:] = dC @ s + np.einsum("n,pnk->pk", base.C, ds)
+        g[0, 1:], g[1:, 1:] = _krylov_sensitivity_outputs(base.Phi, Psi, base.Gamma, dGamma, base.C, dC, N - 1)
     if corr is not None:
-        s, ds = _krylov_sensitivity_columns(base.Phi, Psi, base.Gamma1, dGamma1, N)
-        corr[0] = base.C @ s
-        corr[1:] = dC @ s + np.einsum("n,pnk->pk", base.C, ds)
+        corr[0], corr[1:] = _krylov_sensitivity_outputs(base.Phi, Psi, base.Gamma1, dGamma1, base.C, dC, N)
     return g, corr
 
 
@@ -746,7 +889,7 @@ def _simulate_sens(ss: StateSpace, derivs, u: np.ndarray, dt: float, hold: Hold,
         mf = modal_form(ss)
         if method == "modal" and mf is None:
             raise ValueError("the modal path needs a diagonalisable A with finite eigenvectors")
-        if method == "modal" or _modal_ok(mf, dt, True):
+        if method == "modal" or (_modal_ok(mf, dt, True) and not _rejected_before(mf, dt, hold, u)):
             with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
                 g, corr, gb, cb = _modal_kernels(mf, dt, hold, N, derivs)
                 out = _respond(g, corr, u)
