@@ -107,7 +107,7 @@ def test_batched_refinement_follows_the_unbatched_path_exactly():
     patterns = poles.pattern_search(problem, space, z, template, keep=3)
     assert patterns
     for p in patterns:
-        got = poles.refine_on_poles(problem, space, z, p.theta, stall=None)
+        got = poles.refine_on_poles(problem, space, z, p.theta)
         ref_theta, ref_cost = _reference_refinement(problem, space, z, p.theta)
         assert got.cost == ref_cost
         np.testing.assert_array_equal(got.theta, ref_theta)

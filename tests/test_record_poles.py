@@ -213,32 +213,3 @@ def test_pole_candidates_with_early_stops_equal_every_refinement_run_in_full(mon
     assert [c.cost for c in found] == [c.cost for c in full]
     for a, b in zip(found, full):
         np.testing.assert_array_equal(a.theta, b.theta)
-
-
-def test_stalled_compares_the_windows_progress_with_the_cost():
-    """best_{k-W} - best_k < fraction best_k, checked by hand."""
-    from mbus_framework.estimation.poles import _stalled
-
-    creeping = [1.0 - 1e-5 * k for k in range(31)]  # 2e-4 over 20 evaluations: below 1e-3 of ~1
-    assert _stalled(creeping, window=20, fraction=1e-3)
-    assert not _stalled(creeping, window=20, fraction=1e-4)
-    assert not _stalled(creeping[:20], window=20, fraction=1e-3)  # fewer evaluations than the window
-    falling = [1.0 - 0.01 * k for k in range(31)]  # 0.2 over the window
-    assert not _stalled(falling, window=20, fraction=1e-3)
-
-
-def test_a_stalled_pole_refinement_ends_where_the_full_one_does():
-    """Stopping a creeping refinement changes its cost by less than 1 % and the stiffnesses
-    (what the poles fix) by less than 1 %; the full run's damping it does not need to reach."""
-    from mbus_framework.estimation import poles
-
-    model, theta = ringing_chain(3e11, 50.0, 2e11, 30.0, L=0.02, n=6)
-    problem, _ = record(model, theta, 10, 2.5e-6, 6.25e6, 6200, 0.05, seed=2, state=9)
-    space = gs.search_space(problem)
-    template = np.array([p.typical for p in problem.parameters])
-    z = record_poles(problem.u, problem.y, problem.model.n_states)
-    for p in poles.pattern_search(problem, space, z, template, keep=3):
-        quick = poles.refine_on_poles(problem, space, z, p.theta)
-        full = poles.refine_on_poles(problem, space, z, p.theta, stall=None)
-        assert quick.cost <= full.cost * 1.01 + 1e-15
-        np.testing.assert_allclose(quick.theta[[0, 2]], full.theta[[0, 2]], rtol=0.01)

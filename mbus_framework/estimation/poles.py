@@ -347,23 +347,8 @@ def _forward_steps(x: np.ndarray, rel_step: float) -> tuple[np.ndarray, np.ndarr
 PROGRESS_WINDOW = 20
 
 
-#: A pole refinement whose best cost fell by less than this fraction over the last
-#: ``PROGRESS_WINDOW`` evaluations has stalled (:func:`_stalled`).
-STALL = 1e-4
-
-
 class _CannotWin(Exception):
-    """A pole refinement stopped: at its recent rate it cannot get below the cost to beat, or
-    it has stalled."""
-
-
-def _stalled(best: list[float], window: int = PROGRESS_WINDOW, fraction: float = STALL) -> bool:
-    """True when the best cost fell by less than ``fraction`` of itself over the last ``window``
-    evaluations, best_{k-W} - best_k < fraction best_k: the refinement creeps along a direction
-    the record's poles hardly fix (typically a damping, which barely moves a lightly damped
-    pole); its point is a start for the time-domain fit, which fixes that direction itself."""
-    k = len(best) - 1
-    return k >= window and best[k - window] - best[k] < fraction * best[k]
+    """A pole refinement stopped: at its recent rate it cannot get below the cost to beat."""
 
 
 def _cannot_win(best: list[float], max_nfev: int, beat: float, window: int = PROGRESS_WINDOW) -> bool:
@@ -379,12 +364,11 @@ def _cannot_win(best: list[float], max_nfev: int, beat: float, window: int = PRO
 
 
 def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarray, max_nfev: int = 200,
-                    beat: float = np.inf, stall: float | None = STALL) -> Candidate:
+                    beat: float = np.inf) -> Candidate:
     """Least squares in ln theta (movable entries) on the capped distances of the measured
     poles z to their nearest model poles. ``beat``: the cost this refinement must get below to
     be kept (:func:`pole_candidates`); a refinement that cannot at its recent rate of progress
-    (:func:`_cannot_win`), or that has stalled (:func:`_stalled` with ``stall``; None: never),
-    stops early with its best point so far."""
+    (:func:`_cannot_win`) stops early with its best point so far."""
     mv = np.flatnonzero(space.movable)
     h, n_model = problem.dt, problem.n_model
     theta = np.clip(np.asarray(theta, float), space.lo, space.hi)
@@ -436,7 +420,7 @@ def refine_on_poles(problem, space: SearchSpace, z: np.ndarray, theta: np.ndarra
         if not best or cost < best[-1]:
             best_x[0] = last[0]
         best.append(min(cost, best[-1]) if best else cost)
-        if _cannot_win(best, max_nfev, beat) or (stall is not None and _stalled(best, fraction=stall)):
+        if _cannot_win(best, max_nfev, beat):
             raise _CannotWin
         return r
 
