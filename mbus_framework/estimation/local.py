@@ -22,6 +22,36 @@ if TYPE_CHECKING:  # pragma: no cover
     from mbus_framework.estimation.problem import FitProblem
 
 LOG_RANGE = 23.0  # a log-parameter may move at most e^23 ~ 1e10 from its start
+STOP_SE = 0.05  # a final solve stops when its minimum is within this many standard errors ...
+STOP_STEPS = 2  # ... at this many successive iterations
+
+
+class _Settled(Exception):
+    """Raised from the Jacobian callback when a final solve is statistically at its minimum."""
+
+    def __init__(self, z: np.ndarray, cost: float):
+        super().__init__("settled")
+        self.z, self.cost = z, cost
+
+
+def settled(Jz: np.ndarray, r: np.ndarray, fraction: float) -> bool:
+    """True when the Gauss-Newton minimum of the linearised model is within ``fraction`` standard
+    errors of the current point, in every direction at once.
+
+    The Gauss-Newton step d solves J d ~ -r; its length in the Fisher metric,
+    m = sqrt(d^T J^T J d) / sigma = ||U^T r|| / sigma (J = U S V^T, singular values below 1e-12
+    of the largest dropped), bounds every parameter's move: |d_i| <= m SE_i, with
+    SE_i = sigma sqrt([(J^T J)^-1]_ii) and sigma^2 = ||r||^2 / (N - p), the noise level the
+    residual itself shows (as the reported intervals use it)."""
+    n, k = Jz.shape
+    if n <= k:
+        return False
+    u, sv, _ = np.linalg.svd(Jz, full_matrices=False)
+    if not sv.size or not sv[0] > 0:
+        return False
+    proj = u[:, sv > 1e-12 * sv[0]].T @ r
+    sigma2 = float(r @ r) / (n - k)
+    return bool(sigma2 > 0 and float(proj @ proj) < fraction**2 * sigma2)
 
 
 @dataclass
@@ -65,14 +95,22 @@ class Coordinates:
 
 
 def lm_fit(problem: "FitProblem", theta0: np.ndarray, band: "BandFilter | None", max_nfev: int, final: bool,
-           jacobian: str = "exact", xtol: float = 1e-10, ftol: float = 1e-12) -> "LocalResult":
+           jacobian: str = "exact", xtol: float = 1e-10, ftol: float = 1e-12,
+           stop_se: float | None = STOP_SE) -> "LocalResult":
     """One local Levenberg-Marquardt solve from ``theta0``; final solves use ``xtol``/``ftol``,
-    continuation stages looser tolerances (1e-6, 1e-8). Records a trace per Jacobian."""
+    continuation stages looser tolerances (1e-6, 1e-8). Records a trace per Jacobian.
+
+    A final solve (exact Jacobian, full band) also stops when, at ``STOP_STEPS`` successive
+    iterations, the Gauss-Newton minimum is within ``stop_se`` standard errors (:func:`settled`):
+    further iterations cannot move any estimate by anything its interval can show (MINPACK's
+    ``xtol``/``ftol`` otherwise go on to round-off). ``stop_se=None`` turns this off."""
     free = problem.free
     coords = Coordinates(problem, theta0)
     y = band(problem.y) if band else problem.y
     scale = float(np.sqrt(np.mean(problem.y**2))) or 1.0
     trace: list[dict] = []
+    settle = final and band is None and jacobian == "exact" and stop_se is not None and stop_se > 0
+    last = {"small": 0}
 
     def residual(z):
         with np.errstate(over="ignore", invalid="ignore"):
@@ -94,11 +132,26 @@ def lm_fit(problem: "FitProblem", theta0: np.ndarray, band: "BandFilter | None",
             trace.append({"iteration": len(trace), "cost": 0.5 * float(r @ r), "theta": theta.tolist()})
         if not np.all(np.isfinite(Jz)):
             return np.zeros_like(Jz)
+        if settle and np.all(np.isfinite(r)):
+            last["small"] = last["small"] + 1 if settled(Jz, r, stop_se) else 0
+            if last["small"] >= STOP_STEPS:
+                raise _Settled(np.array(z, dtype=float), 0.5 * float(r @ r))
         return Jz
 
     tol = dict(xtol=xtol, ftol=ftol) if final else dict(xtol=1e-6, ftol=1e-8)
-    res = least_squares(residual, coords.z0, jac=jac if jacobian == "exact" else "2-point", method="lm",
-                        max_nfev=max_nfev, x_scale=1.0, **tol)
+    counts = {"nfev": 0}
+
+    def counted(z):
+        counts["nfev"] += 1
+        return residual(z)
+
+    try:
+        res = least_squares(counted, coords.z0, jac=jac if jacobian == "exact" else "2-point", method="lm",
+                            max_nfev=max_nfev, x_scale=1.0, **tol)
+    except _Settled as done:
+        return LocalResult(theta=coords.theta(done.z), cost=done.cost, nfev=counts["nfev"], njev=len(trace),
+                           status=2, message=f"the Gauss-Newton minimum within {stop_se:g} standard errors at "
+                           f"{STOP_STEPS} successive iterations", iterations=len(trace), trace=trace)
     njev = int(res.njev or 0) if res.njev is not None else 0
     return LocalResult(theta=coords.theta(res.x), cost=float(res.cost), nfev=int(res.nfev), njev=njev,
                        status=int(res.status), message=str(res.message), iterations=njev, trace=trace)

@@ -319,7 +319,8 @@ class _Search:
         return False
 
     def widen_if_on_edge(self, final: LocalResult) -> LocalResult:
-        """Refit with the region widened x/÷ 100 on every side an estimate ended on."""
+        """Refit with the region widened x/÷ 100 on every side an estimate ended on; stops when
+        nothing can widen (the hard bounds) or a refit does not lower the cost."""
         o = self.options
         for _ in range(o.widen):
             lo, hi = self.problem.lower.copy(), self.problem.upper.copy()
@@ -330,14 +331,17 @@ class _Search:
                 break
             lo[low], hi[high] = lo[low] / 100.0, hi[high] * 100.0
             lo, hi = np.maximum(lo, self._hard[0]), np.minimum(hi, self._hard[1])
+            if np.array_equal(lo, self.problem.lower) and np.array_equal(hi, self.problem.upper):
+                break  # on the hard bounds already: nothing to widen, a refit would repeat the last
             self.report.widened += [n for n, f in zip(self.names, low | high) if f]
             self.problem = dataclasses.replace(self.problem, lower=lo, upper=hi)
             self.space = dataclasses.replace(self.space, lo=lo, hi=hi)
             again = self.local_fit(self.problem, final.theta, None, 10 * o.stage_max_nfev, True)
             self.nfev, self.njev = self.nfev + again.nfev, self.njev + again.njev
-            if again.cost <= final.cost:
-                again.trace = final.trace + stage_trace(again, "widened region")
-                final = again
+            if again.cost > final.cost:
+                break  # the wider region holds nothing better: the estimate stays where it was
+            again.trace = final.trace + stage_trace(again, "widened region")
+            final = again
         self.report.box = self._box_dict()
         return final
 
