@@ -235,14 +235,17 @@ def _parameters(doc: str) -> list:
     start = doc.count("\n", 0, headings[i][1]) + 2  # the line after the dashes
     lines = doc.split("\n")
     stop = doc.count("\n", 0, headings[i + 1][1]) if i + 1 < len(headings) else len(lines)
-    headers = [n for n in range(start, stop) if lines[n].strip() and not lines[n][0].isspace()]
+    # numpydoc takes the section's first line as an entry's header however it is indented, then
+    # each unindented line after it
+    filled = [n for n in range(start, stop) if lines[n].strip()]
+    headers = filled[:1] + [n for n in filled[1:] if not lines[n][0].isspace()]
     found = []
     for k, n in enumerate(headers):
         end = headers[k + 1] if k + 1 < len(headers) else stop
         while end > n + 1 and not lines[end - 1].strip():
             end -= 1
         header = lines[n].strip()
-        name, _, kind = header.partition(" : ") if " : " in header else (header, "", "")
+        name, _, kind = header.partition(" : ") if " : " in header else (header.removesuffix(" :"), "", "")
         desc = textwrap.dedent("\n".join(lines[n + 1:end])).split("\n") if end > n + 1 else []
         while desc and not desc[0].strip():
             desc.pop(0)
