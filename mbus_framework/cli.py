@@ -177,12 +177,15 @@ def _prestart(args: argparse.Namespace) -> None:
     """For a run that may plot: fork the figure helper as soon as numpy is loaded, so that it
     imports matplotlib and the figures' modules on the second core while this process imports
     scipy, pydantic and the plugins (:mod:`~mbus_framework.pipeline.figure_workers`)."""
-    from mbus_framework.startup import cheap_scipy_notes, defer_unused_numpy, defer_unused_scipy
+    from mbus_framework.startup import cheap_scipy_notes, collector_paused, defer_unused_numpy, defer_unused_scipy
 
     defer_unused_numpy()  # imports numpy; before scipy loads (numpy.f2py, .testing, ... about 0.1 s of CPU)
     defer_unused_scipy()  # scipy.spatial, which scipy.optimize imports for shgo (about 0.04 s)
     cheap_scipy_notes()  # before scipy.special, .fft, .linalg, .optimize load (about 0.15 s of CPU)
-    if not (args.no_plots or args.study or args.compare_models or args.design_excitation) and _png_figures(args):
+    plotting = not (args.no_plots or args.study or args.compare_models or args.design_excitation)
+    with collector_paused():  # start-up: _png_figures loads pydantic and the config models
+        png = plotting and _png_figures(args)
+    if png:  # forked after the pause: the helper inherits a running collector
         from mbus_framework.pipeline import figure_workers
 
         figure_workers.prestart()
