@@ -173,30 +173,35 @@ def main(argv: Sequence[str] | None = None) -> int:
         figure_workers.discard()  # not a plotting run after all (campaign, error, output.plots: false)
 
 
-def _prestart(args: argparse.Namespace) -> None:
-    """For a run that may plot: fork the figure helper as soon as numpy is loaded, so that it
-    imports matplotlib and the figures' modules on the second core while this process imports
-    scipy, pydantic and the plugins (:mod:`~mbus_framework.pipeline.figure_workers`)."""
+def _prestart(args: argparse.Namespace) -> dict | None:
+    """Start-up of a run: the fast paths of :mod:`mbus_framework.startup`, then the config's YAML
+    read (once: :func:`_png_figures` and :func:`_config_kind` both look at it; None when it is not
+    a readable YAML mapping, which the full validation then reports). For a run that may plot, the
+    figure helper is forked as soon as that is known, so that it imports matplotlib and the
+    figures' modules on the second core while this process imports scipy, pydantic and the
+    plugins (:mod:`~mbus_framework.pipeline.figure_workers`)."""
     from mbus_framework.startup import cheap_scipy_notes, collector_paused, defer_unused_numpy, defer_unused_scipy
 
     defer_unused_numpy()  # imports numpy; before scipy loads (numpy.f2py, .testing, ... about 0.1 s of CPU)
     defer_unused_scipy()  # scipy.spatial, which scipy.optimize imports for shgo (about 0.04 s)
     cheap_scipy_notes()  # before scipy.special, .fft, .linalg, .optimize load (about 0.15 s of CPU)
+    with collector_paused():  # start-up: reading the config loads pydantic and the config models
+        from mbus_framework.pipeline.config import config_mapping_or_none
+
+        data = config_mapping_or_none(args.config)
     plotting = not (args.no_plots or args.study or args.compare_models or args.design_excitation)
-    with collector_paused():  # start-up: _png_figures loads pydantic and the config models
-        png = plotting and _png_figures(args)
-    if png:  # forked after the pause: the helper inherits a running collector
+    if plotting and _png_figures(args, data):  # forked after the pause: the helper inherits a running collector
         from mbus_framework.pipeline import figure_workers
 
         figure_workers.prestart()
+    return data
 
 
-def _png_figures(args: argparse.Namespace) -> bool:
-    """True when the config (or a ``--set output.figures=...``) asks for PNG figures, drawn by
-    the forked helpers; the default SVG figures are drawn in this process and need none."""
-    from mbus_framework.pipeline.config import config_mapping_or_none
-
-    output = (config_mapping_or_none(args.config) or {}).get("output")
+def _png_figures(args: argparse.Namespace, data: dict | None) -> bool:
+    """True when the config mapping ``data`` (or a ``--set output.figures=...``) asks for PNG
+    figures, drawn by the forked helpers; the default SVG figures are drawn in this process and
+    need none."""
+    output = (data or {}).get("output")
     fmt = output.get("figures", "svg") if isinstance(output, dict) else "svg"
     for item in args.overrides:
         key, _, value = item.partition("=")
@@ -232,11 +237,7 @@ def _main(args: argparse.Namespace) -> int:
             _parser().print_usage(sys.stderr)
             print("mbus-run: error: a CONFIG file is required (or --list-plugins)", file=sys.stderr)
             return 2
-        _prestart(args)
-        from mbus_framework.startup import collector_paused
-
-        with collector_paused():  # start-up: pydantic and the config models
-            kind = _special_kind(args.config)
+        kind = _config_kind(_prestart(args))
         if kind == "campaign":
             from mbus_framework.campaigns.cli import run_from_cli
             from mbus_framework.pipeline import figure_workers
@@ -254,9 +255,8 @@ def _main(args: argparse.Namespace) -> int:
             print(joint.run_dir if args.quiet else joint.summary())
             return 0
         from mbus_framework.api import run_config
-        from mbus_framework.pipeline.progress import make_progress
-
-        from mbus_framework.pipeline.progress import make_long_progress
+        from mbus_framework.pipeline.progress import make_long_progress, make_progress
+        from mbus_framework.startup import collector_paused
 
         progress = None if args.quiet else make_progress()
         # a study runs for minutes: progress lines with an ETA in logs too, not only on a terminal
@@ -303,15 +303,20 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
 
 
 def _special_kind(path: str) -> str | None:
-    """``campaign``, ``substitution`` or ``joint`` for those config files (a YAML mapping with a
-    top-level ``campaign:`` or ``joint:`` section, or ``experiment: substitution``), else None;
-    checked here from the YAML alone, as :func:`mbus_framework.campaigns.spec.is_campaign_file`,
+    """:func:`_config_kind` of the config file ``path``."""
+    from mbus_framework.pipeline.config import config_mapping_or_none
+
+    return _config_kind(config_mapping_or_none(path))
+
+
+def _config_kind(data: dict | None) -> str | None:
+    """``campaign``, ``substitution`` or ``joint`` for those configs (``data``, a config file's YAML
+    mapping, with a top-level ``campaign:`` or ``joint:`` section, or ``experiment: substitution``),
+    else None (also for ``data`` None: not a readable YAML mapping); checked from the YAML alone,
+    as :func:`mbus_framework.campaigns.spec.is_campaign_file`,
     :func:`mbus_framework.substitution.config.is_substitution_file` and
     :func:`mbus_framework.joint.config.is_joint_file` do, so that a single run imports none of
     those packages (nor Dask)."""
-    from mbus_framework.pipeline.config import config_mapping_or_none
-
-    data = config_mapping_or_none(path)
     if data is None:
         return None
     if "campaign" in data:

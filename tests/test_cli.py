@@ -236,18 +236,31 @@ def test_an_interrupted_import_is_an_interruption_not_a_bug(tmp_path, capsys, mo
     failed`` (its cause the KeyboardInterrupt): exit 130, not an internal error (70)."""
     import mbus_framework.cli as cli
 
-    def interrupted_import(path):
+    def interrupted_import(data):
         try:
             raise KeyboardInterrupt
         except KeyboardInterrupt as exc:
             raise ImportError("initialization failed") from exc
 
-    monkeypatch.setattr(cli, "_special_kind", interrupted_import)
+    monkeypatch.setattr(cli, "_config_kind", interrupted_import)
     code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
     assert (code, err.strip()) == (130, "mbus-run: interrupted")
-    monkeypatch.setattr(cli, "_special_kind", lambda path: 1 / 0)  # a real bug is still one
+    monkeypatch.setattr(cli, "_config_kind", lambda data: 1 / 0)  # a real bug is still one
     code, out, err = run(capsys, small_config(tmp_path), "-o", tmp_path / "out")
     assert code == 70 and "internal error: ZeroDivisionError" in err
+
+
+def test_the_config_yaml_is_read_once_before_validation(tmp_path, capsys, monkeypatch):
+    """The PNG-figure check and the campaign/substitution/joint check share one read of the file."""
+    from mbus_framework.pipeline import config as config_module
+
+    reads = []
+    real = config_module.config_mapping_or_none
+    monkeypatch.setattr(config_module, "config_mapping_or_none", lambda path: reads.append(path) or real(path))
+    path = small_config(tmp_path)
+    code, out, err = run(capsys, path, "-o", tmp_path / "out", "--set", "output.plots=false", "-q")
+    assert (code, err) == (0, "")
+    assert reads == [str(path)]
 
 
 def test_instrument_error_exits_3(tmp_path, capsys, monkeypatch):
