@@ -148,8 +148,8 @@ def response_batch(model: MediumModel, thetas, f, dt: float | None = None, block
     The same two paths as :func:`response`, vectorised over the batch: the balanced
     eigendecompositions of all state matrices in one stacked ``np.linalg.eig`` / ``inv``, the
     modal sums for every (vector, frequency) at once, and every (vector, frequency) pair whose
-    modal terms cancel (or whose eigenvectors are ill conditioned) in one stacked LU solve of
-    s I - A (continuous; sampled responses solve those per vector). Only the model's own
+    modal terms cancel (or whose eigenvectors are ill conditioned) in stacked LU solves of
+    s I - A (:func:`_solved_pairs`; continuous; sampled responses solve those per vector). Only the model's own
     state-space arithmetic runs once per vector; ``block`` vectors at a time bound the memory."""
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     f = np.asarray(f, dtype=float)
@@ -161,7 +161,6 @@ def response_batch(model: MediumModel, thetas, f, dt: float | None = None, block
         return np.vstack([response_batch(model, thetas[a : a + block], fs[a : a + block], dt, block)
                           for a in range(0, S, block)])
     systems = [as_float_ss(model.state_space(th)) for th in thetas]
-    n = systems[0].A.shape[0]
     H = np.full(fs.shape, np.nan, dtype=complex)
     bad = np.ones(fs.shape, dtype=bool)
     modal = _modal_batch(systems)
@@ -187,10 +186,23 @@ def response_batch(model: MediumModel, thetas, f, dt: float | None = None, block
     C = np.array([b.C[0] for b in balanced]).astype(complex)
     D = np.array([b.D[0, 0] for b in balanced])
     which, col = np.nonzero(bad[rows])  # pairs (row of ``rows``, frequency)
-    M = 2j * np.pi * fs[rows[which], col][:, None, None] * np.eye(n)[None] - A[which]
-    x = np.linalg.solve(M, B[which][..., None])[..., 0]
-    H[rows[which], col] = np.einsum("kn,kn->k", x, C[which]) + D[which]
+    H[rows[which], col] = _solved_pairs(A, B, C, which, 2j * np.pi * fs[rows[which], col]) + D[which]
     return H
+
+
+def _solved_pairs(A, B, C, which, s, chunk: int = 2048) -> np.ndarray:
+    """C_w (s_k I - A_w)^-1 B_w for the pairs k (w = ``which[k]``) by stacked LU solves, ``chunk``
+    pairs at a time: the (pairs, n, n) stack of a whole scan (tens of thousands of pairs)
+    would take hundreds of MB, fresh pages on every call."""
+    d = np.arange(A.shape[1])
+    out = np.empty(s.size, dtype=complex)
+    for a in range(0, s.size, chunk):
+        w = which[a : a + chunk]
+        M = np.negative(A[w], dtype=complex)
+        M[:, d, d] += s[a : a + chunk, None]
+        x = np.linalg.solve(M, B[w][..., None])[..., 0]
+        out[a : a + chunk] = np.einsum("kn,kn->k", x, C[w])
+    return out
 
 
 def _modal_batch(systems: list[StateSpace]):
