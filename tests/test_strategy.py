@@ -332,13 +332,13 @@ def test_a_short_trial_is_resumed_where_it_stopped_when_no_spectral_start_is_acc
     np.testing.assert_array_equal(final.theta, truth)
 
 
-def test_a_frequency_domain_start_that_does_not_converge_in_its_trial_goes_on_when_its_phase_is_done():
-    """A start fitted in the frequency domain should be next to its minimum: one whose
-    time-domain fit has not converged within ``spectral_trial_nfev`` evaluations waits for the
-    other starts of its phase (here the seeds' fits all end at one point: there are none) and
-    then goes on from where it stopped with the rest of its budget (10 stage_max_nfev - trial)."""
+def spectral_trial_scenario(given_end_factors, **options):
+    """Search with a scripted solver: the start as given (fitted at once) ends at truth x
+    ``given_end_factors``, a rejected minimum; the first spectral start stops its 20-evaluation
+    trial unconverged at ``midway``; every other full-band fit ends at the truth (at the start as
+    given's end when it starts there). Returns (problem, truth, midway, given end, final, report, calls)."""
     problem, truth = make_problem(CASES["thin-stiff"])
-    wrong = truth * np.array([1.0, 1.6, 1.0, 0.6])  # a rejected minimum
+    given_end = truth * np.asarray(given_end_factors, float)
     midway = truth * np.array([1.0, 2.0, 1.0, 0.5])
     calls: list[tuple] = []
 
@@ -346,21 +346,50 @@ def test_a_frequency_domain_start_that_does_not_converge_in_its_trial_goes_on_wh
         calls.append((max_nfev, final))
         status, nfev = 1, 3
         if not final:  # the start as given (fitted at once): a rejected minimum
-            theta = wrong
+            theta = given_end
         elif max_nfev == 20 and sum(f and n == 20 for n, f in calls) == 1:  # the first spectral start
             theta, status, nfev = midway, 0, 20
         else:
-            theta = truth if not np.array_equal(np.asarray(theta0, float), wrong) else wrong
+            theta = truth if not np.array_equal(np.asarray(theta0, float), given_end) else given_end
         return LocalResult(np.asarray(theta, float), cost_at(problem_, theta), nfev=nfev, njev=nfev, status=status,
                            message="scripted", iterations=nfev)
 
-    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=None, spectral_trial_nfev=20))
+    final, report, _, _ = search(problem, local, StrategyOptions(bands=[], trial_nfev=None, spectral_trial_nfev=20,
+                                                                 **options))
+    return problem, truth, midway, given_end, final, report, calls
+
+
+@pytest.mark.parametrize("given_end_factors,options", [((1.0, 4.0, 1.0, 0.25), {}),
+                                                       ((1.0, 1.6, 1.0, 0.6), {"resume_above_best": True})])
+def test_a_frequency_domain_start_that_does_not_converge_in_its_trial_goes_on_when_its_phase_is_done(
+        given_end_factors, options):
+    """A start fitted in the frequency domain should be next to its minimum: one whose
+    time-domain fit has not converged within ``spectral_trial_nfev`` evaluations waits for the
+    other starts of its phase (here the seeds' fits all end at one point: there are none) and
+    then goes on from where it stopped with the rest of its budget (10 stage_max_nfev - trial):
+    when it stopped at the lowest cost found, or always with ``resume_above_best``."""
+    problem, truth, midway, given_end, final, report, calls = spectral_trial_scenario(given_end_factors, **options)
+    assert options or cost_at(problem, midway) < cost_at(problem, given_end)  # the trial is the best so far
     origins = [st["origin"] for st in report.starts]
     assert origins[0] == "config (as given)" and not report.starts[0]["verdict"]["accepted"]
     assert "short trial" in report.starts[1]["stopped"] and not report.starts[1]["verdict"]["accepted"]
     assert report.accepted and report.winner == 2 and origins[2] == f"{origins[1]} (resumed)"
     assert report.starts[2]["start"] == pytest.approx(dict(zip(problem.names, midway)))
     assert calls[2] == (10 * 60 - 20, True)
+    np.testing.assert_array_equal(final.theta, truth)
+
+
+def test_a_frequency_domain_trial_that_stopped_above_a_minimum_found_is_not_resumed():
+    """A spectral start's short trial that stopped above the lowest cost found (here the start
+    as given's rejected minimum) is not resumed: the report says so, and the search goes on
+    with the scan, whose start is accepted; no fit has the resumed budget."""
+    problem, truth, midway, given_end, final, report, calls = spectral_trial_scenario((1.0, 1.6, 1.0, 0.6))
+    assert cost_at(problem, midway) > cost_at(problem, given_end)
+    origins = [st["origin"] for st in report.starts]
+    assert not any("resumed" in o for o in origins)
+    assert "above the best found" in report.starts[1]["not_resumed"]
+    assert origins[2] == "scan" and report.accepted and report.winner == 2
+    assert (10 * 60 - 20, True) not in calls
     np.testing.assert_array_equal(final.theta, truth)
 
 

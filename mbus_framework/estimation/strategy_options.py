@@ -108,7 +108,11 @@ class StrategyOptions(BaseModel):
     spectral_trial_nfev: int | None = Field(60, ge=1, description="a start fitted in the frequency domain is "
                                             "next to its minimum: one whose time-domain fit has not converged "
                                             "within this many evaluations waits until the other starts of its "
-                                            "phase are tried, then goes on (null: fitted at once)")
+                                            "phase are tried, then goes on (null: fitted at once) if its cost is "
+                                            "still the lowest found (see resume_above_best)")
+    resume_above_best: bool = Field(False, description="also resume a frequency-domain start's short trial that "
+                                    "stopped above the lowest cost found so far (off: such a trial is crawling "
+                                    "along a valley above a known minimum; the later phases search on instead)")
     stage_max_nfev: int = Field(60, ge=5, description="function-evaluation budget of each local-fit stage")
     significance: float = Field(1e-3, gt=0, lt=1, description="p-value below which input-related structure "
                                                               "in the residual rejects a minimum")
