@@ -1,7 +1,7 @@
 """The doubling path's projected outputs against a plain step-by-step recursion.
 
 ``krylov_outputs`` and ``krylov_sensitivity_outputs`` (:mod:`mbus_framework.engine.doubling`)
-form only the states a later doubling level reads and project the rest; the reference here
+split the lags into baby and giant steps, both by doubling; the reference here
 steps x[k+1] = Phi x[k] and the sensitivity system [[Phi, 0], [Psi_i, Phi]] one sample at a
 time, for lengths on and off the powers of two (every schedule shape)."""
 from __future__ import annotations
@@ -43,8 +43,25 @@ def test_projected_outputs_match_step_by_step(count, n, p):
     np.testing.assert_allclose(doubling.krylov_outputs(Phi, v, c, count), o, rtol=0, atol=1e-13 * scale)
 
 
-def test_schedule_reads_only_formed_states():
-    for count in range(1, 600):
-        levels, need = doubling.doubling_schedule(count)
-        assert sum(t for _, t in levels) + 1 == count
-        assert all(t <= f for f, t in levels) and need <= max(1, -(-count // 2))
+def test_lag_split_covers_every_lag_once():
+    for count in range(0, 600):
+        K, A = doubling.split_lags(count)
+        assert K & (K - 1) == 0 and K * K <= max(count, 1) and A == -(-count // K)
+        assert (A - 1) * K < count <= A * K or count == 0
+
+
+@pytest.mark.parametrize("count", [1, 2, 5, 8, 33])
+def test_power_rows_match_repeated_products(count):
+    Phi, Psi, v, dv, _, _ = _system(5, 2, count)
+    X, dX, Mt, dMt = doubling.power_rows(v, dv, Phi, Psi, count)
+    x, dx = v.copy(), dv.copy()
+    for k in range(count):
+        np.testing.assert_allclose(X[k], x, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(dX[:, k], dx, rtol=0, atol=1e-13)
+        x, dx = x @ Phi, dx @ Phi + np.einsum("j,pjk->pk", x, Psi)
+    T = 1 << (count - 1).bit_length()
+    P, Q = np.eye(5), np.zeros_like(Psi)
+    for _ in range(T):
+        P, Q = P @ Phi, Q @ Phi + P @ Psi
+    np.testing.assert_allclose(Mt, P, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(dMt, Q, rtol=0, atol=1e-13)

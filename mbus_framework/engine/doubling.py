@@ -5,11 +5,12 @@ defined there). With Phi = e^{A h} and h = ``dt`` [s],
 
     Gamma0 = int_0^h e^{A s} ds B = h phi_1(A h) B,   Gamma1 = int_0^h e^{A s} (1 - s/h) ds B = h phi_2(A h) B,
 
-all from one matrix exponential of an augmented matrix (Van Loan, 1978). The Krylov sequence
-[v, Phi v, Phi^2 v, ...] is formed by doubling, [S, Phi^(2^j) S]. It needs no
+all from one matrix exponential of an augmented matrix (Van Loan, 1978). It needs no
 eigendecomposition and is exact for defective (repeated-eigenvalue, Jordan-block) models.
-Only the states a later doubling level reads are formed (a third to a half of them); the
-kernel values beyond are projections (C Phi^f) (Phi^k v). Cost O(n^2 N).
+The kernel values C Phi^k v, k = a K + b with K ~ sqrt(N), are (C Phi^(aK)) (Phi^b v): the
+K states [v, Phi v, ...] and the A ~ sqrt(N) rows [C, C Phi^K, ...] come by repeated
+doubling ([S, Phi^(2^j) S]), the N values from one (A, n) x (n, K) product. Cost
+O(n^2 sqrt(N) + n N + n^3 log N).
 
 Sensitivities: the forward-sensitivity system [[A, 0], [A_p, A]] (2n states) is discretised
 per parameter; its exact discretisation is the exact derivative of the discretised model.
@@ -86,43 +87,58 @@ def markov_parameters(sys: DiscreteSystem, count: int) -> np.ndarray:
     return g
 
 
-def doubling_schedule(count: int) -> tuple[list[tuple[int, int]], int]:
-    """Levels (filled, take) of repeated doubling up to ``count`` terms, and the number of
-    leading terms any level reads (``need``): level (f, t) forms terms f..f+t-1 from terms
-    0..t-1 and Phi^f."""
-    levels, filled = [], 1
-    while filled < count:
-        take = min(filled, count - filled)
-        levels.append((filled, take))
-        filled += take
-    return levels, max((t for _, t in levels), default=1)
+def split_lags(count: int) -> tuple[int, int]:
+    """Baby and giant step counts (K, A) for lags k = a K + b < count (b < K, a < A): K the
+    power of two at most sqrt(count), A = ceil(count / K)."""
+    if count <= 1:
+        return 1, count
+    K = 1 << (int(np.sqrt(count)).bit_length() - 1)
+    return K, -(-count // K)
+
+
+def power_rows(x: np.ndarray, dx: np.ndarray | None, M: np.ndarray, dM: np.ndarray | None, count: int):
+    """Rows x M^k for k < count (count, n) by doubling, with their derivatives
+    dx_i M^k + x (d M^k)_i (p, count, n) when ``dx`` (p, n) and ``dM`` (p, n, n) are given.
+
+    Level t forms rows t..2t-1 from rows 0..t-1 and M^t, d(M^t); then
+    M^(2t) = M^t M^t, d(M^(2t)) = d(M^t) M^t + M^t d(M^t) ([[P, 0], [Q, P]]^2 =
+    [[P^2, 0], [QP + PQ, P^2]]). Returns the rows, their derivatives (or None) and the power
+    M^T, d(M^T) with T the smallest power of two >= count (M^count when count is one).
+    """
+    n = x.shape[0]
+    X = np.empty((count, n))
+    X[0] = x
+    dX = None
+    if dx is not None:
+        dX = np.empty((dx.shape[0], count, n))
+        dX[:, 0] = dx
+    t = 1
+    while t < count:
+        take = min(t, count - t)
+        if dX is not None:
+            dX[:, t : t + take] = small_matmul(dX[:, :take], M) + small_matmul(X[:take], dM)
+        X[t : t + take] = small_matmul(X[:take], M)
+        if dM is not None:
+            dM = small_matmul(dM, M, rows=32) + small_matmul(M, dM, rows=32)
+        M = small_matmul(M, M, rows=32)
+        t *= 2
+    return X, dX, M, dM
 
 
 def krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -> np.ndarray:
-    """c Phi^k v for k < count (count,), by doubling.
+    """c Phi^k v for k < count (count,), by baby and giant steps.
 
-    Only the states Phi^k v that a later level reads are formed (k < ``need``, between a third
-    and a half of ``count``); their outputs are c (Phi^k v), and the terms of a level (f, t)
-    beyond them are the projections c Phi^(f+k) v = (c Phi^f) (Phi^k v), n flops each.
+    With k = a K + b (:func:`split_lags`, K ~ sqrt(count)): c Phi^k v = (c Phi^(aK)) (Phi^b v).
+    The K states Phi^b v and the A rows c Phi^(aK) come by doubling (:func:`power_rows`), the
+    outputs from one (A, n) x (n, K) product: O(n^2 sqrt(count) + n count) flops, and every
+    output is a product of at most log2(count) + 1 computed powers of Phi.
     """
-    out = np.empty(count)
     if count == 0:
-        return out
-    levels, need = doubling_schedule(count)
-    S = np.empty((need, v.shape[0]))  # row k = (Phi^k v)^T
-    S[0] = v
-    PT = Phi.T
-    for i, (filled, take) in enumerate(levels):
-        head = S[:take]
-        full = min(max(need - filled, 0), take)
-        if full:
-            S[filled : filled + full] = small_matmul(head[:full], PT)
-        if full < take:  # small calls, see small_matmul
-            out[filled + full : filled + take] = small_matmul(head[full:], (c @ PT.T)[:, None])[:, 0]
-        if i + 1 < len(levels):
-            PT = small_matmul(PT, PT, rows=32)
-    out[:need] = small_matmul(S, c[:, None])[:, 0]
-    return out
+        return np.empty(0)
+    K, A = split_lags(count)
+    S, _, PK, _ = power_rows(v, None, Phi.T, None, K)  # rows (Phi^b v)^T; (Phi^K)^T
+    rows, _, _, _ = power_rows(c, None, PK.T, None, A)  # rows c Phi^(aK)
+    return small_matmul(rows, S.T).reshape(-1)[:count]
 
 
 def krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
@@ -130,43 +146,21 @@ def krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
 
         o[k] = c Phi^k v,    o_i[k] = dc_i Phi^k v + c ((d Phi^k)_i v + Phi^k dv_i),
 
-    returned as o (count,) and o_p (p, count), using [[P, 0], [Q, P]]^2 = [[P^2, 0], [QP + PQ, P^2]]
-    (P = Phi^f, Q_i = (d Phi^f)_i at level f). As in :func:`krylov_outputs`, only the states
-    s_k = Phi^k v, ds_{i,k} that a later level reads are formed; the terms of a level beyond
-    them are the projections
+    returned as o (count,) and o_p (p, count); Psi_i = (d Phi)_i. As in :func:`krylov_outputs`,
+    k = a K + b: with the states s_b = Phi^b v, ds_{i,b} = (d Phi^b)_i v + Phi^b dv_i and the
+    rows l_a = c Phi^(aK), m_{i,a} = dc_i Phi^(aK) + c (d Phi^(aK))_i (all by doubling),
 
-        o[f+k] = (c P) s_k,   o_i[f+k] = (dc_i P + c Q_i) s_k + (c P) ds_{i,k}.
+        o[aK + b] = l_a s_b,    o_i[aK + b] = m_{i,a} s_b + l_a ds_{i,b}.
     """
-    n, p = v.shape[0], dv.shape[0]
-    o = np.empty(count)
-    op = np.empty((p, count))
+    p = dv.shape[0]
     if count == 0:
-        return o, op
-    levels, need = doubling_schedule(count)
-    s = np.empty((need, n))
-    ds = np.empty((p, need, n))
-    s[0] = v
-    ds[:, 0] = dv
-    P, Q = Phi, Psi
-    for i, (filled, take) in enumerate(levels):
-        s_head, ds_head = s[:take], ds[:, :take]
-        full = min(max(need - filled, 0), take)
-        if full:
-            ds[:, filled : filled + full] = small_matmul(s_head[:full], Q.transpose(0, 2, 1)) + small_matmul(ds_head[:, :full], P.T)
-            s[filled : filled + full] = small_matmul(s_head[:full], P.T)
-        if full < take:
-            cP = c @ P  # (n,)
-            row = dc @ P + np.einsum("m,pmn->pn", c, Q)  # (p, n): dc_i P + c Q_i
-            # stacks of small products (see small_matmul): s_k [c P, dc_i P + c Q_i] and ds_{i,k} (c P)
-            both = small_matmul(s_head[full:], np.concatenate([cP[:, None], row.T], axis=1))  # (take - full, 1 + p)
-            o[filled + full : filled + take] = both[:, 0]
-            op[:, filled + full : filled + take] = both[:, 1:].T + small_matmul(ds_head[:, full:], cP[:, None])[..., 0]
-        if i + 1 < len(levels):
-            Q = small_matmul(Q, P, rows=32) + small_matmul(P, Q, rows=32)
-            P = small_matmul(P, P, rows=32)
-    both = small_matmul(s, np.concatenate([c[:, None], dc.T], axis=1))  # (need, 1 + p)
-    o[:need] = both[:, 0]
-    op[:, :need] = both[:, 1:].T + small_matmul(ds, c[:, None])[..., 0]
+        return np.empty(0), np.empty((p, 0))
+    K, A = split_lags(count)
+    S, dS, PK, QK = power_rows(v, dv, Phi.T, Psi.transpose(0, 2, 1), K)
+    L, dL, _, _ = power_rows(c, dc, PK.T, QK.transpose(0, 2, 1), A)
+    ST = S.T
+    o = small_matmul(L, ST).reshape(-1)[:count]
+    op = (small_matmul(dL, ST) + small_matmul(L, dS.transpose(0, 2, 1))).reshape(p, -1)[:, :count]
     return o, op
 
 
