@@ -65,3 +65,5 @@ def test_power_rows_match_repeated_products(count):
         P, Q = P @ Phi, Q @ Phi + P @ Psi
     np.testing.assert_allclose(Mt, P, rtol=0, atol=1e-13)
     np.testing.assert_allclose(dMt, Q, rtol=0, atol=1e-13)
+    X2, dX2, none, none2 = doubling.power_rows(v, dv, Phi, Psi, count, power=False)
+    assert np.array_equal(X2, X) and np.array_equal(dX2, dX) and none is None and none2 is None

@@ -96,14 +96,15 @@ def split_lags(count: int) -> tuple[int, int]:
     return K, -(-count // K)
 
 
-def power_rows(x: np.ndarray, dx: np.ndarray | None, M: np.ndarray, dM: np.ndarray | None, count: int):
+def power_rows(x: np.ndarray, dx: np.ndarray | None, M: np.ndarray, dM: np.ndarray | None, count: int,
+               power: bool = True):
     """Rows x M^k for k < count (count, n) by doubling, with their derivatives
     dx_i M^k + x (d M^k)_i (p, count, n) when ``dx`` (p, n) and ``dM`` (p, n, n) are given.
 
     Level t forms rows t..2t-1 from rows 0..t-1 and M^t, d(M^t); then
     M^(2t) = M^t M^t, d(M^(2t)) = d(M^t) M^t + M^t d(M^t) ([[P, 0], [Q, P]]^2 =
-    [[P^2, 0], [QP + PQ, P^2]]). Returns the rows, their derivatives (or None) and the power
-    M^T, d(M^T) with T the smallest power of two >= count (M^count when count is one).
+    [[P^2, 0], [QP + PQ, P^2]]). Returns the rows, their derivatives (or None) and, with
+    ``power``, M^T, d(M^T) with T the smallest power of two >= count (else None, None).
     """
     n = x.shape[0]
     X = np.empty((count, n))
@@ -118,11 +119,12 @@ def power_rows(x: np.ndarray, dx: np.ndarray | None, M: np.ndarray, dM: np.ndarr
         if dX is not None:
             dX[:, t : t + take] = small_matmul(dX[:, :take], M) + small_matmul(X[:take], dM)
         X[t : t + take] = small_matmul(X[:take], M)
-        if dM is not None:
-            dM = small_matmul(dM, M, rows=32) + small_matmul(M, dM, rows=32)
-        M = small_matmul(M, M, rows=32)
         t *= 2
-    return X, dX, M, dM
+        if power or t < count:
+            if dM is not None:
+                dM = small_matmul(dM, M, rows=32) + small_matmul(M, dM, rows=32)
+            M = small_matmul(M, M, rows=32)
+    return (X, dX, M, dM) if power else (X, dX, None, None)
 
 
 def krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) -> np.ndarray:
@@ -137,7 +139,7 @@ def krylov_outputs(Phi: np.ndarray, v: np.ndarray, c: np.ndarray, count: int) ->
         return np.empty(0)
     K, A = split_lags(count)
     S, _, PK, _ = power_rows(v, None, Phi.T, None, K)  # rows (Phi^b v)^T; (Phi^K)^T
-    rows, _, _, _ = power_rows(c, None, PK.T, None, A)  # rows c Phi^(aK)
+    rows, _, _, _ = power_rows(c, None, PK.T, None, A, power=False)  # rows c Phi^(aK)
     return small_matmul(rows, S.T).reshape(-1)[:count]
 
 
@@ -157,7 +159,7 @@ def krylov_sensitivity_outputs(Phi, Psi, v, dv, c, dc, count):
         return np.empty(0), np.empty((p, 0))
     K, A = split_lags(count)
     S, dS, PK, QK = power_rows(v, dv, Phi.T, Psi.transpose(0, 2, 1), K)
-    L, dL, _, _ = power_rows(c, dc, PK.T, QK.transpose(0, 2, 1), A)
+    L, dL, _, _ = power_rows(c, dc, PK.T, QK.transpose(0, 2, 1), A, power=False)
     ST = S.T
     o = small_matmul(L, ST).reshape(-1)[:count]
     op = (small_matmul(dL, ST) + small_matmul(L, dS.transpose(0, 2, 1))).reshape(p, -1)[:, :count]
