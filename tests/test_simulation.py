@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mbus_framework.engine import simulation as sim
+from mbus_framework.engine import modal_response, simulation as sim
 from mbus_framework.engine.arrays import zeros_like_params
 from mbus_framework.interfaces.model import MediumModel, Parameter, Property, StateSpace
 from mbus_framework.interfaces.sample import Sample
@@ -190,7 +190,7 @@ def test_markov_parameters_modal_vs_discretize():
     """The modal kernel g[m] equals C Phi^(m-1) Gamma from the Van Loan matrix exponential."""
     ss = sim.as_float_ss(kv(5).state_space(TABLE_3_1))
     for hold in ("zoh", "foh"):
-        g_m, c_m, _, _ = sim._modal_kernels(sim.modal_form(ss), DT, hold, 500)
+        g_m, c_m, _, _ = modal_response.modal_kernels(sim.modal_form(ss), DT, hold, 500)
         d = sim.discretize(ss, DT, hold)
         g_ref = sim.markov_parameters(d, 500)
         assert rel(g_m[0], g_ref) < 1e-12

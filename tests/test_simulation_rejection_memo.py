@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mbus_framework.engine import simulation as sim
+from mbus_framework.engine import modal_response, simulation as sim
 from mbus_framework.interfaces.sample import Sample
 from mbus_plugins.models.kelvin_voigt import KelvinVoigtChain, KelvinVoigtOptions
 
@@ -37,7 +37,7 @@ def test_memo_gives_the_uncached_result(hold, monkeypatch):
     assert sim.engine_path(ss, DT, u=u, hold=hold) == "doubling"  # this record rejects the modal y
     y_ref, J_ref = _fresh_sens(m, THETA, u, hold)
     calls = []
-    monkeypatch.setattr(sim, "_modal_kernels", lambda *a, **k: calls.append(1) or pytest.fail("modal kernels formed"))
+    monkeypatch.setattr(sim, "modal_kernels", lambda *a, **k: calls.append(1) or pytest.fail("modal kernels formed"))
     sim.simulate(m, THETA, u, DT, hold)  # rejects and remembers
     y, J = sim.simulate_with_sensitivities(m, THETA, u, DT, hold)
     assert not calls
@@ -86,7 +86,7 @@ def test_doubling_first_gives_the_same_output(hold, monkeypatch):
     theta = THETA * np.array([1.01, 0.99, 1.02, 0.98])
     y_fresh = _fresh_y(m, theta, u, hold)
     sim.simulate(m, THETA, u, DT, hold)  # the record is known to take the doubling path
-    monkeypatch.setattr(sim, "_modal_block_response", lambda *a: pytest.fail("modal y formed"))
+    monkeypatch.setattr(sim, "modal_block_response", lambda *a: pytest.fail("modal y formed"))
     np.testing.assert_array_equal(sim.simulate(m, THETA, u, DT, hold), y_ref)
     np.testing.assert_array_equal(sim.simulate(m, theta, u, DT, hold), y_fresh)
 
@@ -105,8 +105,8 @@ def test_prediction_does_not_change_an_accepted_modal_output():
 def test_bounds_match_the_block_recursion(hold):
     m, u = model(), prbs()
     mf = sim.modal_form(sim.as_float_ss(m.state_space(THETA)))
-    y, amp = sim._modal_block_response(mf, DT, hold, u)
-    assert sim._output_amplification(y, *sim._modal_y_bounds(mf, DT, hold, u.size), u) == amp
+    y, amp = modal_response.modal_block_response(mf, DT, hold, u)
+    assert modal_response.output_amplification(y, *modal_response.modal_y_bounds(mf, DT, hold, u.size), u) == amp
 
 
 def test_surely_rejected_keeps_a_margin():
