@@ -224,13 +224,39 @@ def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.
     return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
 
 
+def _angle_costs_rounded(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray,
+                         row: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`_angle_costs` to rounding, cheaply, and a bound on its difference from it.
+
+    The angles fold as |t - 2 pi rint(t / 2 pi)| (no ``np.mod``) and each measured pole's
+    nearest model angle is a running minimum over the n modes ((C, M) arrays, no sort). Both
+    folds are |t - 2 pi k| to a few ulp of t, so every angle differs by at most
+    delta = 8 eps (max t + 4); a capped square then by 2 cap delta + delta^2, a sum of M of
+    them by M times that plus its own rounding. The bound returned is four times that."""
+    t = np.exp(lnc)[:, None] * omega_h[row]  # (C, n), the same numbers as _angle_costs
+    ang = np.abs(t - 2 * np.pi * np.rint(t * (0.5 / np.pi)))
+    d = np.full((t.shape[0], phi.size), np.inf)
+    for j in range(t.shape[1]):
+        np.minimum(d, np.abs(ang[:, j : j + 1] - phi), out=d)
+    cost = (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
+    eps = np.finfo(float).eps
+    delta = 8 * eps * (float(np.max(t, initial=0.0)) + 4.0)
+    bound = phi.size * (2 * ANGLE_CAP * delta + delta**2 + 2 * phi.size * eps * ANGLE_CAP**2)
+    return cost, 4 * bound
+
+
 #: Scales scored in one pass of :func:`_best_scales` (memory O(BATCH (n + M))).
 BATCH = 4096
 
 
 def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarray]) -> list[tuple[int, float]]:
     """(index of the least cost, cost) per pattern: ``np.argmin`` of :func:`_angle_costs`
-    pattern by pattern, with the patterns of one mode count scored together."""
+    pattern by pattern, with the patterns of one mode count scored together.
+
+    Every scale is first scored by :func:`_angle_costs_rounded`; only the scales within twice
+    its error bound of their pattern's least rounded cost can hold the least exact cost
+    (a pattern with a non-finite cost keeps all), and only those are scored exactly, so the
+    index and cost are those of the exact costs of all scales."""
     out: list[tuple[int, float] | None] = [None] * len(omegas)
     groups: dict[int, list[int]] = {}
     for k, w in enumerate(omegas):
@@ -245,11 +271,18 @@ def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarra
                 start += 1
             sizes = np.array([lncs[k].size for k in part])
             row = np.repeat(np.arange(len(part)), sizes)
-            cost = _angle_costs(np.array([omegas[k] for k in part]), phi, np.concatenate([lncs[k] for k in part]), row)
+            W, lnc = np.array([omegas[k] for k in part]), np.concatenate([lncs[k] for k in part])
             first = np.r_[0, np.cumsum(sizes)[:-1]]
-            for k, a, b in zip(part, first, first + sizes):
-                j = int(np.argmin(cost[a:b]))
-                out[k] = (j, float(cost[a + j]))
+            rounded, bound = _angle_costs_rounded(W, phi, lnc, row)
+            least = np.minimum.reduceat(rounded, first)
+            near = (rounded <= (least + 2 * bound)[row]) | ~np.isfinite(least)[row]
+            sel = np.flatnonzero(near)
+            exact = _angle_costs(W, phi, lnc[sel], row[sel])
+            bounds = np.searchsorted(sel, np.r_[first, lnc.size])
+            for p, k in enumerate(part):
+                a, b = bounds[p], bounds[p + 1]
+                j = a + int(np.argmin(exact[a:b]))
+                out[k] = (int(sel[j] - first[p]), float(exact[j]))
     return out
 
 
