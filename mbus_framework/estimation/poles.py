@@ -224,25 +224,50 @@ def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.
     return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
 
 
+#: Bins over [0, pi] of the measured-angle table of :func:`_angle_costs_rounded` (width cap / 4).
+ANGLE_BINS = int(np.ceil(4 * np.pi / ANGLE_CAP))
+
+
+def _near_angles(phi: np.ndarray, bins: int = ANGLE_BINS) -> np.ndarray:
+    """(bins, K) indices of the measured angles within ``ANGLE_CAP`` (plus a rounding margin)
+    of some angle of each bin of [0, pi], padded with ``phi.size``."""
+    w = np.pi / bins
+    lo, hi = np.arange(bins) * w - ANGLE_CAP - 1e-6 * w, (np.arange(bins) + 1) * w + ANGLE_CAP + 1e-6 * w
+    near = (phi[None, :] >= lo[:, None]) & (phi[None, :] <= hi[:, None])  # (bins, M)
+    K = max(int(near.sum(axis=1).max()), 1)
+    order = np.argsort(~near, axis=1, kind="stable")[:, :K]  # the near ones first
+    return np.where(np.take_along_axis(near, order, axis=1), order, phi.size)
+
+
 def _angle_costs_rounded(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray,
                          row: np.ndarray) -> tuple[np.ndarray, float]:
     """:func:`_angle_costs` to rounding, cheaply, and a bound on its difference from it.
 
-    The angles fold as |t - 2 pi rint(t / 2 pi)| (no ``np.mod``) and each measured pole's
-    nearest model angle is a running minimum over the n modes ((C, M) arrays, no sort). Both
-    folds are |t - 2 pi k| to a few ulp of t, so every angle differs by at most
-    delta = 8 eps (max t + 4); a capped square then by 2 cap delta + delta^2, a sum of M of
-    them by M times that plus its own rounding. The bound returned is four times that."""
+    The angles fold as |t - 2 pi rint(t / 2 pi)| (no ``np.mod``); only a measured angle within
+    the cap of a model angle lowers its term below cap^2, and those are looked up by the model
+    angle's bin (:func:`_near_angles`), their distances taking the least per (scale, measured
+    angle) in one unbuffered ``np.minimum.at``: O(C n K) with K the most measured angles near
+    one bin, no sort. Both folds are |t - 2 pi k| to a few ulp of t, so every angle differs
+    by at most delta = 8 eps (max t + 4); a capped square then by 2 cap delta + delta^2, a sum
+    of M of them by M times that plus its own rounding. The bound returned is four times that."""
     t = np.exp(lnc)[:, None] * omega_h[row]  # (C, n), the same numbers as _angle_costs
     ang = np.abs(t - 2 * np.pi * np.rint(t * (0.5 / np.pi)))
-    d = np.full((t.shape[0], phi.size), np.inf)
-    for j in range(t.shape[1]):
-        np.minimum(d, np.abs(ang[:, j : j + 1] - phi), out=d)
-    cost = (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
+    C, M = t.shape[0], phi.size
+    table = _near_angles(phi)
+    ang = ang.ravel()
+    b = np.minimum((ang * (ANGLE_BINS / np.pi)).astype(np.intp), ANGLE_BINS - 1)
+    scale = np.arange(ang.size) // t.shape[1]
+    nearest = np.full(C * M, ANGLE_CAP)  # min(d, cap) per (scale, measured angle)
+    for k in range(table.shape[1]):
+        i = table[:, k][b]
+        at = np.flatnonzero(i < M)  # the model angles with a k-th measured angle near
+        i = i[at]
+        np.minimum.at(nearest, scale[at] * M + i, np.abs(ang[at] - phi[i]))
+    cost = (nearest.reshape(C, M) ** 2).sum(axis=1)
     eps = np.finfo(float).eps
     delta = 8 * eps * (float(np.max(t, initial=0.0)) + 4.0)
-    bound = phi.size * (2 * ANGLE_CAP * delta + delta**2 + 2 * phi.size * eps * ANGLE_CAP**2)
-    return cost, 4 * bound
+    bound = M * (2 * ANGLE_CAP * delta + delta**2 + 2 * M * eps * ANGLE_CAP**2)
+    return np.where(np.all(np.isfinite(t), axis=1), cost, np.nan), 4 * bound
 
 
 #: Scales scored in one pass of :func:`_best_scales` (memory O(BATCH (n + M))).
