@@ -75,3 +75,42 @@ def test_scale_candidates_batch_equal_the_single_pattern_ones_exactly():
         got = _scale_candidates_batch(omegas, phi, lo, hi, rows=int(rng.integers(1, 8)))
         for w, a, b, g in zip(omegas, lo, hi, got):
             np.testing.assert_array_equal(g, _scale_candidates(w, phi, a, b))
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 14), m=st.integers(1, 13), c=st.integers(1, 300), seed=st.integers(0, 2**16),
+       crowded=st.booleans(), far=st.booleans())
+def test_rounded_angle_costs_stay_within_their_bound(n, m, c, seed, crowded, far):
+    """The cheap cost (rint fold, binned lookup of the near measured angles) differs from the
+    exact one by no more than the bound it returns: measured angles crowded within the cap of
+    each other (several near one bin), at 0 and pi, and scales far up the aliases."""
+    from mbus_framework.estimation.poles import _angle_costs_rounded
+
+    rng = np.random.default_rng(seed)
+    omega_h = rng.uniform(0.0, 5.0, n)
+    phi = rng.uniform(0.0, np.pi, m)
+    if crowded:
+        phi = 1.0 + rng.uniform(-1.5, 1.5, m) * ANGLE_CAP
+        phi[0], phi[-1] = 0.0, np.pi
+    lnc = rng.uniform(-3.0, 9.0 if far else 3.0, c)
+    row = np.zeros(c, dtype=np.intp)
+    rounded, bound = _angle_costs_rounded(omega_h[None, :], phi, lnc, row)
+    exact = _angle_costs(omega_h, phi, lnc)
+    assert bound < 1e-9
+    assert np.all(np.abs(rounded - exact) <= bound)
+
+
+def test_near_angles_hold_every_measured_angle_within_the_cap_of_a_bin():
+    """Every measured angle within the cap of an angle in a bin is listed for that bin (the
+    reference: the distance of each measured angle to a fine grid of angles in each bin)."""
+    from mbus_framework.estimation.poles import ANGLE_BINS, _near_angles
+
+    rng = np.random.default_rng(5)
+    phi = np.r_[0.0, np.pi, rng.uniform(0.0, np.pi, 9), 1.0 + np.arange(5) * 0.3 * ANGLE_CAP]
+    table = _near_angles(phi)
+    w = np.pi / ANGLE_BINS
+    for b in range(ANGLE_BINS):
+        grid = b * w + np.linspace(0.0, w, 9)
+        need = np.flatnonzero(np.abs(grid[:, None] - phi[None, :]).min(axis=0) <= ANGLE_CAP)
+        assert set(need) <= set(table[b]), b
+    assert np.all((table >= 0) & (table <= phi.size))

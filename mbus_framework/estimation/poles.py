@@ -31,9 +31,10 @@ from scipy.optimize import least_squares
 
 from mbus_framework.engine.simulation import as_float_ss
 from mbus_framework.estimation.global_search import Candidate, SearchSpace, distinct, sobol
+from mbus_framework.estimation.pole_angles import (  # noqa: F401 (the angle arithmetic, re-exported)
+    ANGLE_BINS, ANGLE_CAP, BATCH, _angle_costs, _angle_costs_direct, _angle_costs_rounded, _best_scales, _fold,
+    _near_angles, _scale_candidates, _scale_candidates_batch)
 
-#: Largest angle distance [rad] a measured pole contributes (a pole the model cannot explain).
-ANGLE_CAP = 0.05
 #: Largest complex distance a measured pole contributes in the refinement.
 POLE_CAP = 0.05
 
@@ -122,142 +123,6 @@ def _continuous_poles_batch(model, thetas: np.ndarray) -> list[np.ndarray]:
         for k, l in zip(rows, lam):
             out[k] = l
     return out
-
-
-def _fold(angle: np.ndarray) -> np.ndarray:
-    """Angles folded into [0, pi] (a pole and its conjugate, aliasing included)."""
-    return np.abs(np.mod(angle + np.pi, 2 * np.pi) - np.pi)
-
-
-def _scale_candidates(omega_h: np.ndarray, phi: np.ndarray, lnc_lo: float, lnc_hi: float) -> np.ndarray:
-    """ln c at which some c omega_j h equals some +-phi_i modulo 2 pi, within [lnc_lo, lnc_hi]:
-    c = (2 pi k +- phi_i) / (omega_j h) for every alias k of every mode (modes with more than
-    64 aliases in the range skipped: more than a record can tell apart); all modes at once."""
-    c_lo, c_hi = np.exp(lnc_lo), np.exp(lnc_hi)
-    w = omega_h[omega_h > 0]
-    k_lo, k_hi = np.floor(c_lo * w / (2 * np.pi)), np.floor(c_hi * w / (2 * np.pi)) + 1
-    keep = k_hi - k_lo <= 64
-    w, k_lo, k_hi = w[keep], k_lo[keep], k_hi[keep]
-    if w.size == 0:
-        return np.empty(0)
-    k = k_lo[:, None] + np.arange(int((k_hi - k_lo).max()) + 1)[None, :]  # (modes, aliases)
-    two_pi_k, wj = (2 * np.pi * k)[:, :, None], w[:, None, None]
-    with np.errstate(over="ignore"):  # a vanishing mode frequency: c beyond any range
-        c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, modes, aliases, measured)
-    c = c[(k <= k_hi[:, None])[None, :, :, None] & (c >= c_lo) & (c <= c_hi)]
-    if c.size == 0:
-        return np.empty(0)
-    c = np.unique(c)  # phi = pi: alias k + phi and alias k + 1 - phi are one crossing, apart by rounding
-    return np.log(c[np.r_[True, np.diff(c) > 1e-12 * c[1:]]])
-
-
-def _scale_candidates_batch(omegas: list[np.ndarray], phi: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                            rows: int = 128) -> list[np.ndarray]:
-    """:func:`_scale_candidates` of every pattern (``omegas[r]`` its mode angles per unit scale,
-    ``lo[r]``, ``hi[r]`` its ln c range), the same numbers, with the patterns of one mode count
-    done together (``rows`` at a time): one (2, rows, modes, aliases, measured) array, one
-    sort by (pattern, c) and the same duplicate rule within each pattern."""
-    out: list[np.ndarray] = [np.empty(0)] * len(omegas)
-    pos = [w[w > 0] for w in omegas]
-    groups: dict[int, list[int]] = {}
-    for r, w in enumerate(pos):
-        if w.size:
-            groups.setdefault(w.size, []).append(r)
-    for members in groups.values():
-        for a in range(0, len(members), rows):
-            idx = np.array(members[a : a + rows])
-            w = np.array([pos[r] for r in idx])  # (R, n)
-            c_lo, c_hi = np.exp(np.asarray(lo, float)[idx])[:, None], np.exp(np.asarray(hi, float)[idx])[:, None]
-            k_lo, k_hi = np.floor(c_lo * w / (2 * np.pi)), np.floor(c_hi * w / (2 * np.pi)) + 1
-            keep = k_hi - k_lo <= 64
-            if not keep.any():
-                continue
-            k = k_lo[:, :, None] + np.arange(int((k_hi - k_lo)[keep].max()) + 1)  # (R, n, aliases)
-            two_pi_k, wj = (2 * np.pi * k)[..., None], w[:, :, None, None]
-            with np.errstate(over="ignore"):
-                c = np.stack([(two_pi_k + phi) / wj, (two_pi_k - phi) / wj])  # (2, R, n, aliases, M)
-            valid = ((k <= k_hi[:, :, None]) & keep[:, :, None])[None, ..., None]
-            valid = valid & (c >= c_lo[None, :, :, None, None]) & (c <= c_hi[None, :, :, None, None])
-            row = np.broadcast_to(np.arange(idx.size)[None, :, None, None, None], c.shape)[valid]
-            c = c[valid]
-            if c.size == 0:
-                continue
-            order = np.lexsort((c, row))
-            c, row = c[order], row[order]
-            first = np.r_[True, row[1:] != row[:-1]]
-            new = first | np.r_[True, np.diff(c) > 1e-12 * c[1:]]  # exact repeats fail the test too
-            c, row = c[new], row[new]
-            bounds = np.searchsorted(row, np.arange(idx.size + 1))
-            for j, r in enumerate(idx):
-                if bounds[j + 1] > bounds[j]:
-                    out[r] = np.log(c[bounds[j] : bounds[j + 1]])
-    return out
-
-
-def _angle_costs(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray, row: np.ndarray | None = None) -> np.ndarray:
-    """sum_i min(min_j |fold(c omega_j h) - phi_i|, cap)^2 for every c = e^lnc.
-
-    ``omega_h`` (n,) one pattern's mode angles per unit scale, or (R, n) several patterns
-    with ``row`` (C,) naming each scale's pattern (all patterns in one pass).
-
-    The nearest model angle to phi_i is the largest angle <= phi_i or the smallest >= phi_i:
-    with the model angles of each c sorted, the count of angles below each phi_i (one
-    bincount of their slots between the sorted phi) picks both neighbours, so the work is
-    O(C (n + M)) instead of O(C n M); the distances are the same floating-point numbers as
-    the direct minimum (|a - phi| = phi - a exactly, and rounding is monotone)."""
-    omega = np.atleast_2d(omega_h)
-    row = np.zeros(lnc.size, dtype=np.intp) if row is None else row
-    ang = np.sort(_fold(np.exp(lnc)[:, None] * omega[row]), axis=1)  # (C, n)
-    C, n = ang.shape
-    order = np.argsort(phi, kind="stable")
-    ps = phi[order]
-    M = ps.size
-    slot = np.searchsorted(ps, ang, side="left")  # number of phi below each angle, (C, n)
-    counts = np.bincount((np.arange(C)[:, None] * (M + 1) + slot).ravel(), minlength=C * (M + 1))
-    below = np.cumsum(counts.reshape(C, M + 1), axis=1)[:, :M]  # angles <= ps_i, (C, M)
-    rows = np.arange(C)[:, None]
-    lower = np.where(below > 0, ang[rows, np.maximum(below - 1, 0)], -np.inf)
-    upper = np.where(below < n, ang[rows, np.minimum(below, n - 1)], np.inf)
-    d_sorted = np.minimum(ps - lower, upper - ps)
-    d = np.empty_like(d_sorted)
-    d[:, order] = d_sorted  # back to the measured poles' order (the same sum as the direct form)
-    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
-
-
-#: Scales scored in one pass of :func:`_best_scales` (memory O(BATCH (n + M))).
-BATCH = 4096
-
-
-def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarray]) -> list[tuple[int, float]]:
-    """(index of the least cost, cost) per pattern: ``np.argmin`` of :func:`_angle_costs`
-    pattern by pattern, with the patterns of one mode count scored together."""
-    out: list[tuple[int, float] | None] = [None] * len(omegas)
-    groups: dict[int, list[int]] = {}
-    for k, w in enumerate(omegas):
-        groups.setdefault(w.size, []).append(k)
-    for members in groups.values():
-        start = 0
-        while start < len(members):
-            part, size = [], 0
-            while start < len(members) and (not part or size + lncs[members[start]].size <= BATCH):
-                part.append(members[start])
-                size += lncs[members[start]].size
-                start += 1
-            sizes = np.array([lncs[k].size for k in part])
-            row = np.repeat(np.arange(len(part)), sizes)
-            cost = _angle_costs(np.array([omegas[k] for k in part]), phi, np.concatenate([lncs[k] for k in part]), row)
-            first = np.r_[0, np.cumsum(sizes)[:-1]]
-            for k, a, b in zip(part, first, first + sizes):
-                j = int(np.argmin(cost[a:b]))
-                out[k] = (j, float(cost[a + j]))
-    return out
-
-
-def _angle_costs_direct(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
-    """:func:`_angle_costs` by the direct (C, M, n) minimum (the reference for tests)."""
-    ang = _fold(np.exp(lnc)[:, None] * omega_h[None, :])  # (C, n)
-    d = np.abs(ang[:, None, :] - phi[None, :, None]).min(axis=2)  # (C, M)
-    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)
 
 
 def pattern_search(problem, space: SearchSpace, z: np.ndarray, template: np.ndarray, points: int = 2048,
