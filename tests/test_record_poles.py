@@ -188,28 +188,37 @@ def test_cannot_win_extrapolates_the_recent_rate_to_the_budget():
     assert not _cannot_win(slope, 200, 0.81, window=20)
 
 
+#: Ringing records (chain properties, elements, noise seed, PRBS state) on which some pole
+#: refinements cannot get below the kept candidates. Which refinements stop depends on round-off
+#: (one record of this kind stopped none on one CPU and one on another), so there are several.
+EARLY_STOP_RECORDS = [((1e11, 20.0, 5e10, 10.0), 6, 3, 4), ((1e11, 20.0, 5e10, 10.0), 6, 5, 1),
+                      ((3e11, 50.0, 2e11, 30.0), 8, 3, 4)]
+
+
 def test_pole_candidates_with_early_stops_equal_every_refinement_run_in_full(monkeypatch):
-    """The refinements that cannot get below the kept candidates stop early (here one does);
-    the candidates kept are the same as when every pattern is refined to its own end."""
+    """The refinements that cannot get below the kept candidates stop early (some do on these
+    records); the candidates kept are the same as when every pattern is refined to its own end."""
     from mbus_framework.estimation import poles
 
-    model, theta = ringing_chain(3e11, 50.0, 2e11, 30.0, L=0.02, n=6)
-    problem, _ = record(model, theta, 10, 2.5e-6, 6.25e6, 6200, 0.05, seed=2, state=9)
-    space = gs.search_space(problem)
-    template = np.array([p.typical for p in problem.parameters])
-    z = record_poles(problem.u, problem.y, problem.model.n_states)
-    patterns = poles.pattern_search(problem, space, z, template, keep=6)
-    full = gs.distinct([poles.refine_on_poles(problem, space, z, p.theta) for p in patterns], rtol=0.01, limit=3)
-    stops = []
     original = poles._cannot_win
+    stops = []
 
     def counted(*args, **kwargs):
         stops.append(original(*args, **kwargs))
         return stops[-1]
 
-    monkeypatch.setattr(poles, "_cannot_win", counted)
-    found = pole_candidates(problem, space, template, limit=3)
-    assert any(stops)
-    assert [c.cost for c in found] == [c.cost for c in full]
-    for a, b in zip(found, full):
-        np.testing.assert_array_equal(a.theta, b.theta)
+    for props, n, seed, state in EARLY_STOP_RECORDS:
+        model, theta = ringing_chain(*props, L=0.02, n=n)
+        problem, _ = record(model, theta, 10, 2.5e-6, 6.25e6, 6200, 0.05, seed=seed, state=state)
+        space = gs.search_space(problem)
+        template = np.array([p.typical for p in problem.parameters])
+        z = record_poles(problem.u, problem.y, problem.model.n_states)
+        patterns = poles.pattern_search(problem, space, z, template, keep=6)
+        full = gs.distinct([poles.refine_on_poles(problem, space, z, p.theta) for p in patterns], rtol=0.01, limit=3)
+        monkeypatch.setattr(poles, "_cannot_win", counted)
+        found = pole_candidates(problem, space, template, limit=3)
+        monkeypatch.setattr(poles, "_cannot_win", original)
+        assert [c.cost for c in found] == [c.cost for c in full]
+        for a, b in zip(found, full):
+            np.testing.assert_array_equal(a.theta, b.theta)
+    assert any(stops), "no refinement stopped early on any record: the test no longer exercises the stop"
