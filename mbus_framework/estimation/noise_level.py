@@ -22,7 +22,7 @@ windows (they are a minority), and the median of chi^2 turns it into sigma^2.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 #: Half width R of a window (w = 15 lines) and degree d of the local polynomials: 9 complex
 #: degrees of freedom per window.
@@ -52,4 +52,5 @@ def local_polynomial_variance(u: np.ndarray, y: np.ndarray, half_width: int = HA
     Q = np.linalg.qr(design)[0]  # orthonormal even where U vanishes: the residual keeps `dof` lines
     residual = Yw - np.einsum("kwp,kp->kw", Q, np.einsum("kwp,kw->kp", Q.conj(), Yw))
     energy = np.sum(np.abs(residual) ** 2, axis=1)  # ~ (N sigma^2 / 2) chi^2_{2 dof}
-    return float(2.0 * np.median(energy) / (stats.chi2.median(2 * dof) * y.size))
+    chi2_median = 2.0 * special.gammaincinv(dof, 0.5)  # median of chi^2 with 2 dof degrees of freedom
+    return float(2.0 * np.median(energy) / (chi2_median * y.size))
