@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from typing import Iterator, NoReturn, Sequence
 
 from mbus_framework import __version__
-from mbus_framework.errors import ConfigError, MbusError
+from mbus_framework.errors import MbusError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -300,13 +300,6 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
-
-
-def _special_kind(path: str) -> str | None:
-    """:func:`_config_kind` of the config file ``path``."""
-    from mbus_framework.pipeline.config import config_mapping_or_none
-
-    return _config_kind(config_mapping_or_none(path))
 
 
 def _config_kind(data: dict | None) -> str | None:

@@ -200,9 +200,13 @@ print("\\n@@MODULES@@" + json.dumps([int(not result.success), sorted(sys.modules
 def test_special_config_files_are_still_recognised(tmp_path):
     """The command line's own check agrees with the campaign, substitution and joint packages'."""
     from mbus_framework.campaigns.spec import is_campaign_file
-    from mbus_framework.cli import _special_kind
+    from mbus_framework.cli import _config_kind
     from mbus_framework.joint.config import is_joint_file
+    from mbus_framework.pipeline.config import config_mapping_or_none
     from mbus_framework.substitution.config import is_substitution_file
+
+    def _special_kind(path: str) -> str | None:  # the command line's check of a config file
+        return _config_kind(config_mapping_or_none(path))
 
     files = {"campaign": "campaign:\n  base: base.yaml\n", "substitution": "experiment: substitution\n",
              "joint": "joint:\n  records: []\n", "other_experiment": "experiment: other\njoint: {}\n",

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize._numdiff import approx_derivative
 
-from mbus_framework.estimation.poles import ANGLE_CAP, _angle_costs, _best_scales, _fold, _forward_steps
+from mbus_framework.estimation.pole_angles import ANGLE_CAP, _angle_costs, _best_scales, _fold
+from mbus_framework.estimation.poles import _forward_steps
 
 
 def direct_costs(omega_h, phi, lnc):
@@ -61,7 +62,7 @@ def test_scale_candidates_batch_equal_the_single_pattern_ones_exactly():
     """Every pattern's alias crossings from the batched enumeration are the same numbers as
     :func:`_scale_candidates` of that pattern alone (mode counts mixed, empty patterns, phi = pi,
     ranges without crossings, batches smaller than a group)."""
-    from mbus_framework.estimation.poles import _scale_candidates, _scale_candidates_batch
+    from mbus_framework.estimation.pole_angles import _scale_candidates, _scale_candidates_batch
 
     rng = np.random.default_rng(7)
     for trial in range(60):
@@ -84,7 +85,7 @@ def test_rounded_angle_costs_stay_within_their_bound(n, m, c, seed, crowded, far
     """The cheap cost (rint fold, binned lookup of the near measured angles) differs from the
     exact one by no more than the bound it returns: measured angles crowded within the cap of
     each other (several near one bin), at 0 and pi, and scales far up the aliases."""
-    from mbus_framework.estimation.poles import _angle_costs_rounded
+    from mbus_framework.estimation.pole_angles import _angle_costs_rounded
 
     rng = np.random.default_rng(seed)
     omega_h = rng.uniform(0.0, 5.0, n)
@@ -103,7 +104,7 @@ def test_rounded_angle_costs_stay_within_their_bound(n, m, c, seed, crowded, far
 def test_near_angles_hold_every_measured_angle_within_the_cap_of_a_bin():
     """Every measured angle within the cap of an angle in a bin is listed for that bin (the
     reference: the distance of each measured angle to a fine grid of angles in each bin)."""
-    from mbus_framework.estimation.poles import ANGLE_BINS, _near_angles
+    from mbus_framework.estimation.pole_angles import ANGLE_BINS, _near_angles
 
     rng = np.random.default_rng(5)
     phi = np.r_[0.0, np.pi, rng.uniform(0.0, np.pi, 9), 1.0 + np.arange(5) * 0.3 * ANGLE_CAP]

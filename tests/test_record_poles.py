@@ -127,7 +127,7 @@ def test_scale_candidates_are_every_alias_crossing_of_every_mode(omega_h, phi, l
     """The (vectorised) time scales c at which a model angle c omega_j h meets a measured angle
     +-phi_i modulo 2 pi: against a plain enumeration of c = (2 pi k +- phi_i) / (omega_j h),
     mode by mode and alias by alias (modes with more than 64 aliases in range skipped)."""
-    from mbus_framework.estimation.poles import _scale_candidates
+    from mbus_framework.estimation.pole_angles import _scale_candidates
 
     omega_h, phi = np.array(omega_h), np.array(phi)
     lnc_hi = lnc_lo + span

@@ -197,10 +197,3 @@ def _best_scales(omegas: list[np.ndarray], phi: np.ndarray, lncs: list[np.ndarra
                 j = a + int(np.argmin(exact[a:b]))
                 out[k] = (int(sel[j] - first[p]), float(exact[j]))
     return out
-
-
-def _angle_costs_direct(omega_h: np.ndarray, phi: np.ndarray, lnc: np.ndarray) -> np.ndarray:
-    """:func:`_angle_costs` by the direct (C, M, n) minimum (the reference for tests)."""
-    ang = _fold(np.exp(lnc)[:, None] * omega_h[None, :])  # (C, n)
-    d = np.abs(ang[:, None, :] - phi[None, :, None]).min(axis=2)  # (C, M)
-    return (np.minimum(d, ANGLE_CAP) ** 2).sum(axis=1)

@@ -31,9 +31,7 @@ from scipy.optimize import least_squares
 
 from mbus_framework.engine.simulation import as_float_ss
 from mbus_framework.estimation.global_search import Candidate, SearchSpace, distinct, sobol
-from mbus_framework.estimation.pole_angles import (  # noqa: F401 (the angle arithmetic, re-exported)
-    ANGLE_BINS, ANGLE_CAP, BATCH, _angle_costs, _angle_costs_direct, _angle_costs_rounded, _best_scales, _fold,
-    _near_angles, _scale_candidates, _scale_candidates_batch)
+from mbus_framework.estimation.pole_angles import _best_scales, _fold, _scale_candidates_batch
 
 #: Largest complex distance a measured pole contributes in the refinement.
 POLE_CAP = 0.05
